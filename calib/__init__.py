@@ -1,0 +1,1 @@
+"""Camera calibration and event-camera / frame-camera alignment in space and time."""

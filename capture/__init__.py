@@ -1,0 +1,1 @@
+"""Capture: RAW event streams, live devices, clocks and the session store."""

@@ -1,0 +1,1 @@
+"""Automatic ball detection and tracking from events and frames."""

@@ -1,0 +1,164 @@
+"""Ball track container and the cutting of events into spin windows along a track.
+
+These two types are the contract between detection (which produces a
+:class:`Track`) and spin estimation (which consumes :class:`SpinWindow`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from capture.events import time_slice
+
+_DTYPES = {"t_us": np.int64, "cx": np.float64, "cy": np.float64, "r": np.float64,
+           "vx": np.float64, "vy": np.float64, "score": np.float32, "flight": np.int32}
+
+
+@dataclass
+class Track:
+    """Ball track, one row per track update, sorted by time.
+
+    Attributes
+    ----------
+    t_us : ndarray of int64, shape (N,)
+        Update time, µs on the event clock.
+    cx, cy, r : ndarray of float64, shape (N,)
+        Ball circle (centre and radius) in pixels at ``t_us``.
+    vx, vy : ndarray of float64, shape (N,)
+        Image velocity of the centre, px/s.
+    score : ndarray of float32, shape (N,)
+        Confidence of the update, 0..1.
+    flight : ndarray of int32, shape (N,)
+        Flight number (a new one each time the ball enters, is hit or bounces).
+    """
+
+    t_us: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    r: np.ndarray
+    vx: np.ndarray
+    vy: np.ndarray
+    score: np.ndarray
+    flight: np.ndarray
+
+    def __post_init__(self):
+        for f in fields(self):
+            setattr(self, f.name, np.asarray(getattr(self, f.name), dtype=_DTYPES[f.name]).reshape(-1))
+        n = {len(getattr(self, f.name)) for f in fields(self)}
+        if len(n) > 1:
+            raise ValueError("track columns have different lengths")
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    @classmethod
+    def empty(cls) -> Track:
+        return cls(**{name: np.zeros(0, dt) for name, dt in _DTYPES.items()})
+
+    @classmethod
+    def from_columns(cls, columns: Mapping[str, np.ndarray]) -> Track:
+        """From a mapping with the session store's track columns."""
+        return cls(**{name: columns[name] for name in _DTYPES})
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Columns keyed by the session store's track field names."""
+        return {name: getattr(self, name) for name in _DTYPES}
+
+    def flight_ids(self) -> np.ndarray:
+        """Distinct flight numbers in order of appearance."""
+        _, first = np.unique(self.flight, return_index=True)
+        return self.flight[np.sort(first)]
+
+    def select(self, mask) -> Track:
+        """Rows where ``mask`` is true (or the given indices)."""
+        return Track(**{name: getattr(self, name)[mask] for name in _DTYPES})
+
+    def at(self, t_us: float, flight: int | None = None) -> tuple[float, float, float, float, float]:
+        """Circle and velocity ``(cx, cy, r, vx, vy)`` at time ``t_us`` (µs).
+
+        Linear interpolation between the updates of one flight (the flight of the
+        nearest update unless ``flight`` is given); outside a flight's span the
+        centre is extrapolated with the end velocity.
+        """
+        if len(self) == 0:
+            raise ValueError("empty track")
+        if flight is None:
+            flight = int(self.flight[np.argmin(np.abs(self.t_us - t_us))])
+        rows = self.select(self.flight == flight)
+        t = rows.t_us.astype(np.float64)
+        if t_us <= t[0] or t_us >= t[-1] or len(rows) == 1:
+            i = 0 if t_us <= t[0] else len(rows) - 1
+            dt_s = (t_us - t[i]) * 1e-6
+            return (float(rows.cx[i] + rows.vx[i] * dt_s), float(rows.cy[i] + rows.vy[i] * dt_s),
+                    float(rows.r[i]), float(rows.vx[i]), float(rows.vy[i]))
+        return tuple(float(np.interp(t_us, t, getattr(rows, c))) for c in ("cx", "cy", "r", "vx", "vy"))
+
+
+@dataclass(frozen=True)
+class SpinWindow:
+    """Events of one ball over one time window, with the track's prior.
+
+    Attributes
+    ----------
+    t_start_us, t_end_us : int
+        Window ``[t_start_us, t_end_us)``, µs.
+    events : ndarray of EVENT_DTYPE
+        Events inside the moving circle (plus margin) during the window.
+    center : (float, float)
+        Ball centre in pixels at ``t_start_us``.
+    radius_px : float
+        Ball radius in pixels.
+    velocity_px_s : (float, float)
+        Image velocity of the centre, px/s.
+    flight : int
+        Flight number of the track rows the window came from.
+    """
+
+    t_start_us: int
+    t_end_us: int
+    events: np.ndarray
+    center: tuple[float, float]
+    radius_px: float
+    velocity_px_s: tuple[float, float]
+    flight: int
+
+
+def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, step_us: int | None = None,
+                 min_events: int = 2000, max_events: int | None = None,
+                 margin_px: float = 1.0) -> Iterator[SpinWindow]:
+    """Cut ``events`` into spin windows along ``track``.
+
+    Each flight is covered by windows of ``window_us`` starting every ``step_us``
+    (default: ``window_us``, no overlap). A window keeps the events whose distance
+    to the moving centre ``c(t) = c0 + v (t - t0)`` is at most ``r + margin_px``;
+    windows with fewer than ``min_events`` such events are skipped, and at most
+    ``max_events`` (the first ones) are kept.
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+        Time-sorted events.
+    track : Track
+        The ball track.
+    """
+    step_us = window_us if step_us is None else step_us
+    for flight in track.flight_ids():
+        rows = track.select(track.flight == flight)
+        for t0 in range(int(rows.t_us[0]), int(rows.t_us[-1]) + 1, step_us):
+            t1 = t0 + window_us
+            win = time_slice(events, t0, t1)
+            if len(win) < min_events:
+                continue
+            cx, cy, r, vx, vy = track.at(t0, flight=int(flight))
+            dt_s = (win["t"] - t0) * 1e-6
+            dx = win["x"] - (cx + vx * dt_s)
+            dy = win["y"] - (cy + vy * dt_s)
+            inside = win[dx * dx + dy * dy <= (r + margin_px) ** 2]
+            if max_events is not None:
+                inside = inside[:max_events]
+            if len(inside) < min_events:
+                continue
+            yield SpinWindow(t0, t1, inside, (cx, cy), r, (vx, vy), int(flight))

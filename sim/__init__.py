@@ -1,0 +1,1 @@
+"""Synthetic spinning-ball simulator with ground truth."""

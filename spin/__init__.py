@@ -1,0 +1,1 @@
+"""Ball spin estimation by Contrast Maximization."""

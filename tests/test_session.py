@@ -1,0 +1,201 @@
+"""The session store on a real directory: round trips, time windows, live readers, crash safety."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import zarr
+
+from capture import session as S
+from capture.events import EVENT_DTYPE, make_events, make_triggers, time_slice
+
+
+def _events(n, seed=0, t_max=3_000_000, width=640, height=480):
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(10_000, t_max, n))
+    return make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+
+
+def test_events_round_trip_across_chunks(tmp_path):
+    ev = _events(S.EVENT_CHUNK + 12345)
+    with S.create_session(tmp_path / "s", width=640, height=480, attrs={"sensor": {"model": "IMX636"}}) as w:
+        for i in range(0, len(ev), 70_000):
+            w.append_events(ev[i:i + 70_000])
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == len(ev)
+    out = s.events()
+    assert out.dtype == EVENT_DTYPE
+    assert np.array_equal(out, ev)
+    assert s.attrs["sensor"] == {"model": "IMX636"}
+    assert s.attrs["schema_version"] == S.SCHEMA_VERSION
+    assert (s.width, s.height) == (640, 480)
+    # stored as separate compressed columns, t with a delta filter
+    g = zarr.open_group(str(tmp_path / "s"), mode="r")
+    assert sorted(g["events"].array_keys()) == ["p", "t", "x", "y"]
+    assert g["events"]["t"].chunks == (S.EVENT_CHUNK,)
+    assert any("delta" in type(f).__name__.lower() for f in g["events"]["t"].filters)
+
+
+def test_time_window_reads_through_index(tmp_path):
+    ev = _events(400_000, seed=1)
+    with S.create_session(tmp_path / "s", width=640, height=480) as w:
+        w.append_events(ev)
+    s = S.open_session(tmp_path / "s")
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        a, b = np.sort(rng.integers(0, 3_100_000, 2))
+        assert np.array_equal(s.events(a, b), time_slice(ev, a, b))
+    # exact boundaries and times outside the recording
+    t_mid = int(ev["t"][200_000])
+    assert np.array_equal(s.events(t_mid, t_mid + 1), ev[ev["t"] == t_mid])
+    assert len(s.events(0, 5_000)) == 0
+    assert len(s.events(10**9, 10**9 + 10)) == 0
+    idx = zarr.open_group(str(tmp_path / "s"), mode="r")["index"]
+    ms = idx["ms_to_idx"][:]
+    t0_ms = idx.attrs["t0_ms"]
+    k = np.arange(len(ms))
+    assert np.array_equal(ms, np.searchsorted(ev["t"], (t0_ms + k) * 1000))
+
+
+def test_tables_round_trip(tmp_path):
+    tr = make_triggers([100, 2100, 4100], [0, 0, 1], [1, 0, 1])
+    track = {"t_us": np.arange(5) * 1000, "cx": np.linspace(10, 50, 5), "cy": np.full(5, 20.0),
+             "r": np.full(5, 30.0), "vx": np.full(5, 1e4), "vy": np.zeros(5),
+             "score": np.ones(5), "flight": np.zeros(5, int)}
+    spin = {"t_start_us": [0, 1000], "t_end_us": [1000, 2000], "axis": [[0, 0, 1], [0, 1, 0]],
+            "omega_rad_s": [628.3, 1256.6], "rps": [100.0, 200.0],
+            "velocity_px_s": [[1e4, 0], [1e4, 0]], "confidence": [0.9, 0.8]}
+    with S.create_session(tmp_path / "s", width=64, height=48) as w:
+        w.append_triggers(tr)
+        w.write_track(track)
+        w.write_spin(spin)
+        w.append_frames([0, 16_667], images=np.full((2, 48, 64, 3), 7, np.uint8))
+    s = S.open_session(tmp_path / "s")
+    assert np.array_equal(s.triggers(), tr)
+    got = s.track()
+    for k, v in track.items():
+        assert np.allclose(got[k], v), k
+    sp = s.spin()
+    assert sp["axis"].shape == (2, 3) and np.allclose(sp["axis"][1], [0, 1, 0])
+    assert np.allclose(sp["rps"], [100, 200]) and sp["velocity_px_s"].shape == (2, 2)
+    fr = s.frames()
+    assert list(fr["t_us"]) == [0, 16_667] and fr["image"].shape == (2, 48, 64, 3)
+    # replay replaces the track in place
+    w = S.update_session(tmp_path / "s")
+    w.write_track({k: v[:2] for k, v in track.items()})
+    w.close()
+    assert len(S.open_session(tmp_path / "s").track()["t_us"]) == 2
+
+
+def test_empty_session_reads_empty(tmp_path):
+    S.create_session(tmp_path / "s", width=10, height=10).close()
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == 0 and len(s.events(0, 10)) == 0
+    assert len(s.triggers()) == 0 and len(s.track()["t_us"]) == 0 and s.spin()["axis"].shape == (0, 3)
+
+
+def test_reader_follows_live_writer(tmp_path):
+    ev = _events(50_000, seed=3)
+    w = S.create_session(tmp_path / "s", width=640, height=480)
+    w.append_events(ev[:20_000])
+    w.flush()
+    r = S.open_session(tmp_path / "s")
+    assert r.n_events == 20_000 and not r.attrs["closed"]
+    w.append_events(ev[20_000:])
+    w.flush()
+    r.reload()
+    assert r.n_events == 50_000
+    assert np.array_equal(r.events(), ev)
+    w.close()
+    r.reload()
+    assert r.attrs["closed"]
+
+
+def test_reader_ignores_uncommitted_tail(tmp_path):
+    """Data written past ``n_committed`` (an append cut short) is invisible to readers."""
+    ev = _events(1000, seed=4)
+    w = S.create_session(tmp_path / "s", width=640, height=480)
+    w.append_events(ev)
+    w.flush()
+    g = zarr.open_group(str(tmp_path / "s"), mode="r+", use_consolidated=False)
+    for name in "txyp":
+        g["events"][name].resize((1500,))  # what a writer killed after resize leaves behind
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == 1000
+    assert np.array_equal(s.events(), ev)
+    assert np.array_equal(s.events(0, 10**12), ev)
+
+
+WRITER = textwrap.dedent("""
+    import sys, numpy as np
+    from capture.session import create_session
+    from capture.events import make_events
+    w = create_session(sys.argv[1], width=640, height=480, flush_interval_s=0.0)
+    rng = np.random.default_rng(5)
+    t = 0
+    for i in range(100000):
+        n = 7919
+        tt = t + np.sort(rng.integers(0, 1000, n)); t += 1000
+        w.append_events(make_events(tt, rng.integers(0, 640, n), rng.integers(0, 480, n), rng.integers(0, 2, n)))
+        print(w._events.n, flush=True)
+""")
+
+
+def test_sigkill_mid_recording_keeps_committed_events(tmp_path):
+    path = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    committed = 0
+    for line in proc.stdout:
+        committed = int(line)
+        if committed > 3 * S.EVENT_CHUNK // 2:  # past one whole chunk and into the next
+            break
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    s = S.open_session(path)
+    assert s.n_events >= committed
+    # regenerate the writer's deterministic stream and compare everything committed
+    rng = np.random.default_rng(5)
+    parts, t, total = [], 0, 0
+    while total < s.n_events:
+        n = 7919
+        tt = t + np.sort(rng.integers(0, 1000, n)); t += 1000
+        parts.append(make_events(tt, rng.integers(0, 640, n), rng.integers(0, 480, n), rng.integers(0, 2, n)))
+        total += n
+    expected = np.concatenate(parts)[:s.n_events]
+    got = s.events()
+    assert len(got) == s.n_events
+    assert np.array_equal(got, expected)
+    assert np.all(np.diff(got["t"]) >= 0)
+
+
+def test_not_a_session_and_newer_schema(tmp_path):
+    with pytest.raises(S.SessionError, match="no such session"):
+        S.open_session(tmp_path / "missing")
+    (tmp_path / "plain").mkdir()
+    with pytest.raises(S.SessionError, match="not a session"):
+        S.open_session(tmp_path / "plain")
+    zarr.open_group(str(tmp_path / "other"), mode="w", zarr_format=3).attrs["foo"] = 1
+    with pytest.raises(S.SessionError, match="not a session"):
+        S.open_session(tmp_path / "other")
+    S.create_session(tmp_path / "new", width=1, height=1).close()
+    meta = json.loads((tmp_path / "new" / "zarr.json").read_text())
+    meta["attributes"]["schema_version"] = S.SCHEMA_VERSION + 1
+    (tmp_path / "new" / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(S.SessionError, match="newer"):
+        S.open_session(tmp_path / "new")
+
+
+def test_writer_rejects_bad_input(tmp_path):
+    w = S.create_session(tmp_path / "s", width=10, height=10)
+    with pytest.raises(TypeError, match="EVENT_DTYPE"):
+        w.append_events(np.zeros(3, dtype=[("t", "<f8")]))
+    w.append_events(make_events([5, 6], [1, 1], [1, 1], [1, 0]))
+    with pytest.raises(ValueError, match="non-decreasing"):
+        w.append_events(make_events([4], [1], [1], [1]))
+    with pytest.raises(S.SessionError, match="already exists"):
+        S.create_session(tmp_path / "s", width=10, height=10)
