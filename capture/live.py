@@ -1,0 +1,129 @@
+"""Live analysis beside the recorder: ball tracking and spin on the incoming stream.
+
+The recorder hands every decoded batch to :meth:`LiveAnalysis.offer`, which never
+blocks: batches go to a bounded queue and are skipped (and counted) when the
+analysis thread falls behind, so the recording is never slowed down.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from capture.events import concatenate, time_slice
+from detect import BallTracker
+from detect.track import Track, spin_windows
+
+
+@dataclass
+class LiveState:
+    """What the live analysis knows now (read by the status display).
+
+    Attributes
+    ----------
+    ball : tuple or None
+        Last ball circle ``(t_us, cx, cy, r)`` in px, or None.
+    spin : object or None
+        Last spin estimate (``spin.SpinEstimate``), or None.
+    analysed_events, skipped_events : int
+        Events analysed and events skipped because the analysis was behind.
+    """
+
+    ball: tuple | None = None
+    spin: object | None = None
+    analysed_events: int = 0
+    skipped_events: int = 0
+
+
+class LiveAnalysis:
+    """Background thread running :class:`detect.BallTracker` and spin on recent events.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor geometry, px.
+    review : capture.review.LiveReview, optional
+        Where to log track rows and spin estimates.
+    spin_every_us : int
+        Least sensor time between two live spin estimates, µs.
+    window_us, min_events, max_events :
+        Spin window settings (see :func:`detect.track.spin_windows`).
+    max_queue : int
+        Batches waiting before new ones are skipped.
+    keep_us : int
+        Sensor time of recent events kept for spin windows (the tracker reports with a delay), µs.
+    """
+
+    def __init__(self, width: int, height: int, *, review=None, spin_every_us: int = 100_000,
+                 window_us: int = 2000, min_events: int = 1500, max_events: int = 20000,
+                 max_queue: int = 16, keep_us: int = 200_000):
+        self.tracker = BallTracker(width, height)
+        self.review = review
+        self.state = LiveState()
+        self.error: BaseException | None = None
+        self._spin_every_us = spin_every_us
+        self._window = dict(window_us=window_us, min_events=min_events, max_events=max_events)
+        self._queue: queue.Queue = queue.Queue(maxsize=max_queue)
+        self._recent: list[np.ndarray] = []
+        self._keep_us = keep_us
+        self._rows = Track.empty()
+        self._last_spin_t = -(1 << 62)
+        self._thread = threading.Thread(target=self._run, name="live-analysis", daemon=True)
+        self._thread.start()
+
+    def offer(self, events: np.ndarray) -> None:
+        """Queue a batch for analysis; skip it (and count it) if the analysis is behind."""
+        if len(events) == 0:
+            return
+        try:
+            self._queue.put_nowait(events)
+        except queue.Full:
+            self.state.skipped_events += len(events)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop the thread after the queued batches (waits at most ``timeout_s``)."""
+        self._queue.put(None)
+        self._thread.join(timeout_s)
+
+    def _run(self) -> None:
+        try:
+            while (batch := self._queue.get()) is not None:
+                self._analyse(batch)
+        except Exception as exc:  # reported by the recorder; the recording goes on regardless
+            self.error = exc
+
+    def _analyse(self, batch: np.ndarray) -> None:
+        rows = self.tracker.update(batch)
+        self.state.analysed_events += len(batch)
+        t_now = int(batch["t"][-1])
+        self._recent.append(batch)
+        while len(self._recent) > 1 and self._recent[0]["t"][-1] < t_now - self._keep_us:
+            self._recent.pop(0)
+        if len(rows) == 0:
+            return
+        if self.review is not None:
+            self.review.log_track(rows)
+        self.state.ball = (int(rows.t_us[-1]), float(rows.cx[-1]), float(rows.cy[-1]), float(rows.r[-1]))
+        if t_now - self._last_spin_t < self._spin_every_us:
+            return
+        self._last_spin_t = t_now
+        self._estimate_spin(rows)
+
+    def _estimate_spin(self, rows: Track) -> None:
+        """One spin estimate on the window that ends at the newest track row."""
+        import spin
+
+        w_us = self._window["window_us"]
+        last = rows.select(rows.flight == rows.flight[-1])
+        last = last.select(last.t_us >= last.t_us[-1] - w_us)
+        t0 = int(last.t_us[0])
+        events = time_slice(concatenate(b for b in self._recent if b["t"][-1] >= t0), t0, t0 + w_us)
+        windows = list(spin_windows(events, last, **self._window))[:1]
+        est = spin.estimate_windows(windows)
+        if est:
+            self.state.spin = est[0]
+            if self.review is not None:
+                self.review.log_spin(est[0])
