@@ -96,7 +96,10 @@ def _blur(image: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.GaussianBlur(image, (k, k), sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
 
 
-def _corners(u, v, width):
+def _corners(u, v, width, height):
+    # points pushed off the raster (possible only for wild velocities) are held at its border
+    u = np.clip(u, 0.0, width - 1.001)
+    v = np.clip(v, 0.0, height - 1.001)
     iu = np.floor(u)
     iv = np.floor(v)
     fu = (u - iu).astype(np.float32)
@@ -112,7 +115,7 @@ def vote(u, v, weight, shape, n_images: int = 1) -> np.ndarray:
     Returns float32 of shape (M * H, W).
     """
     h, w = shape
-    idx, fu, fv = _corners(u, v, w)
+    idx, fu, fv = _corners(u, v, w, h)
     if idx.ndim == 2:
         idx = idx + (np.arange(idx.shape[1]) * (h * w))[None, :]
     wgt = np.broadcast_to(weight.reshape(len(weight), *([1] * (idx.ndim - 1))), idx.shape).astype(np.float32)
@@ -181,7 +184,7 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     q = rotate(p, theta, coef)
     u, v = geometry.to_iwe(*q)
     h, width = geometry.shape
-    idx, fu, fv = _corners(u, v, width)
+    idx, fu, fv = _corners(u, v, width, h)
     wgt = ev.weight.astype(np.float32)
     a = wgt * (1.0 - fv)
     b = wgt * fv
@@ -201,9 +204,9 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     gq = (du.astype(dt), dv.astype(dt), zero.astype(dt))
     # d f / d theta_k = J_l^T (q_k x g_k); d f / d w = sum_k tau_k d f / d theta_k
     dtheta = left_jacobian_transpose_apply(theta, cross(q, gq), coef)
-    grad_w = np.array([np.dot(ev.tau_s, dtheta[i]) for i in range(3)], dtype=np.float64)
+    grad_w = np.array([np.einsum("i,i->", ev.tau_s, dtheta[i]) for i in range(3)], dtype=np.float64)
     # d f / d p_k = R_k^T g_k  (rotation by -theta); p depends on v through the centre offset
     gp = rotate(gq, tuple(-t for t in theta), coef)
-    grad_v = np.array([-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)],
+    grad_v = np.array([-np.einsum("i,i->", ev.s_s, gp[0] + gp[2] * dzdx), -np.einsum("i,i->", ev.s_s, gp[1] + gp[2] * dzdy)],
                       dtype=np.float64)
     return value, grad_w, grad_v

@@ -50,7 +50,7 @@ def score_directions(ev: BallEvents, omega_rad_s: float, directions: np.ndarray,
     a, b = _coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
     big_a = (a * phi)[:, None]
     big_b = (b * phi * phi)[:, None]
-    ndp = np.concatenate([px, py, pz], axis=1) @ n.T
+    ndp = px * nx + py * ny + pz * nz
     qx = px + big_a * (ny * pz - nz * py) + big_b * (nx * ndp - px)
     qy = py + big_a * (nz * px - nx * pz) + big_b * (ny * ndp - py)
     qz = pz + big_a * (nx * py - ny * px) + big_b * (nz * ndp - pz) if geometry.hemispheres else None
