@@ -1,0 +1,199 @@
+"""Public entry points: one estimate from events and a circle, or one per track window."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from spin.fast import estimate_fast
+from spin.objective import BallEvents
+from spin.paper import PAPER_EVENTS, estimate_paper
+from spin.search import coarse_search, distinct_candidates
+
+
+class SpinInputError(ValueError):
+    """The events or the circle cannot give a spin estimate (too few events, empty circle, ...)."""
+
+
+@dataclass(frozen=True)
+class SpinEstimate:
+    """One spin estimate (conventions: ``docs/conventions.md``).
+
+    Attributes
+    ----------
+    axis : ndarray (3,)
+        Unit spin axis, camera frame (X right, Y down, Z forward), right-hand rule with ``omega >= 0``.
+    omega_rad_s : float
+        Angular speed, rad/s, >= 0.
+    rps : float
+        Revolutions per second, ``omega / (2 pi)``.
+    velocity_px_s : ndarray (2,)
+        Image velocity of the ball centre, px/s.
+    t_start_us, t_end_us : int
+        Time span of the events used, µs (end exclusive).
+    n_events : int
+        Number of events used.
+    contrast : float
+        IWE variance at the estimate (method-specific scale).
+    converged : bool
+        Whether the optimiser met its convergence test.
+    confidence : float
+        0..1; low when the contrast barely beats no rotation, when a distinct rival
+        solution (other axis or aliased omega) is almost as good, or when the window
+        covers little rotation.
+    method : str
+        ``"fast"`` or ``"paper"``.
+    """
+
+    axis: np.ndarray
+    omega_rad_s: float
+    rps: float
+    velocity_px_s: np.ndarray
+    t_start_us: int
+    t_end_us: int
+    n_events: int
+    contrast: float
+    converged: bool
+    confidence: float
+    method: str
+
+
+def _check_events(events) -> np.ndarray:
+    names = getattr(getattr(events, "dtype", None), "names", None) or ()
+    missing = [f for f in ("t", "x", "y", "p") if f not in names]
+    if missing:
+        raise SpinInputError(f"events: need a structured array with fields t, x, y, p (missing {missing})")
+    return events
+
+
+def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0, 0.0), rim_fraction: float = 1.0,
+            max_events: int | None = None, min_events: int = 200, sensor_size=None) -> tuple[BallEvents, np.ndarray]:
+    """Select the events inside the moving circle and express them for warping.
+
+    Returns the :class:`BallEvents` (``t_ref`` at the middle of the selected events)
+    and the selected raw events.  Raises :class:`SpinInputError` naming the problem.
+    """
+    events = _check_events(events)
+    cx, cy = (float(c) for c in center)
+    r = float(radius_px)
+    if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r)) or r <= 2.0:
+        raise SpinInputError(f"circle: centre ({cx}, {cy}) and radius {r} px must be finite with radius > 2 px")
+    w, h = sensor_size if sensor_size is not None else (65536, 65536)
+    if cx + r < 0 or cy + r < 0 or cx - r > w - 1 or cy - r > h - 1:
+        raise SpinInputError(f"circle: centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px lies outside the sensor "
+                             f"{w}x{h}")
+    if len(events) == 0:
+        raise SpinInputError("events: empty array")
+    t0 = int(events["t"][0]) if t0_us is None else int(t0_us)
+    vx, vy = (float(c) for c in velocity_px_s)
+    s = (events["t"] - t0).astype(np.float64) * 1e-6
+    dx = events["x"].astype(np.float64) - cx - vx * s
+    dy = events["y"].astype(np.float64) - cy - vy * s
+    keep = dx * dx + dy * dy <= (rim_fraction * r) ** 2
+    if not keep.any():
+        raise SpinInputError(f"circle: no events inside the circle centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px")
+    idx = np.flatnonzero(keep)
+    if max_events is not None:
+        idx = idx[:max_events]
+    if len(idx) < min_events:
+        raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
+    sel = events[idx]
+    s = s[idx]
+    t_ref = 0.5 * (s[0] + s[-1])
+    ball = BallEvents(events["x"][idx] - cx, events["y"][idx] - cy, s, t_ref - s,
+                      2.0 * sel["p"].astype(np.float64) - 1.0, r)
+    return ball, sel
+
+
+def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: str = "fast",
+                  sensor_size=None, min_events: int = 200, **opts) -> SpinEstimate:
+    """Estimate the ball's spin from its events by contrast maximisation.
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+        Time-sorted events (others are ignored: only those inside the moving circle are used).
+    center : (float, float)
+        Ball centre in px at ``t0_us``.
+    radius : float
+        Ball radius in px.
+    t0_us : int, optional
+        Time of ``center``, µs; default the first event's time.
+    velocity : (float, float), optional
+        Prior image velocity of the centre, px/s (from the tracker); default 0, refined.
+    method : {"fast", "paper"}
+        ``"fast"`` (default): coarse search + coarse-to-fine L-BFGS (:mod:`spin.fast`).
+        ``"paper"``: the seed paper's joint Adam ascent (:mod:`spin.paper`).
+    sensor_size : (int, int), optional
+        ``(width, height)`` to check the circle against.
+    min_events : int
+        Fewest events inside the circle accepted.
+    **opts
+        Passed to :func:`spin.fast.estimate_fast` or :func:`spin.paper.estimate_paper`
+        (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``).
+
+    Raises
+    ------
+    SpinInputError
+        Bad events, circle outside the sensor, no or too few events inside the circle.
+    """
+    if method not in ("fast", "paper"):
+        raise SpinInputError(f"method: {method!r} is not 'fast' or 'paper'")
+    known = velocity is not None
+    v0 = np.zeros(2) if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(2)
+    if method == "fast":
+        ev, sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
+                          max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size)
+        res = estimate_fast(ev, v0, velocity_known=known, **opts)
+        w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
+    else:
+        ev, sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
+                          max_events=opts.pop("max_events", PAPER_EVENTS), min_events=min_events,
+                          sensor_size=sensor_size)
+        w0 = opts.pop("init_w_rad_s", None)
+        if w0 is None:
+            omegas, dirs, scores = coarse_search(ev, v0, omega_min_rad_s=2 * np.pi * 3.0,
+                                                 omega_max_rad_s=2 * np.pi * 1500.0)
+            w0 = distinct_candidates(omegas, dirs, scores, 1)[0]
+        res = estimate_paper(ev, w0, v0, **opts)
+        w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, np.nan
+    omega = float(np.linalg.norm(w))
+    axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
+    return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
+                        t_start_us=int(sel["t"][0]), t_end_us=int(sel["t"][-1]) + 1, n_events=len(sel),
+                        contrast=float(value), converged=bool(converged), confidence=float(confidence),
+                        method=method)
+
+
+def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bool = True,
+                     **opts) -> list[SpinEstimate]:
+    """One estimate per :class:`detect.track.SpinWindow` (centre at the window start, the track's velocity).
+
+    Windows whose events cannot give an estimate (:class:`SpinInputError`) are
+    skipped when ``skip_errors`` (default), else the error propagates.
+    """
+    out = []
+    for win in windows:
+        try:
+            out.append(estimate_spin(win.events, win.center, win.radius_px, t0_us=win.t_start_us,
+                                     velocity=win.velocity_px_s, method=method, **opts))
+        except SpinInputError:
+            if not skip_errors:
+                raise
+    return out
+
+
+def to_columns(estimates) -> dict[str, np.ndarray]:
+    """Columns of the session store's ``SPIN_FIELDS`` from a list of estimates."""
+    est = list(estimates)
+    return {
+        "t_start_us": np.array([e.t_start_us for e in est], dtype=np.int64),
+        "t_end_us": np.array([e.t_end_us for e in est], dtype=np.int64),
+        "axis": np.array([e.axis for e in est], dtype=np.float64).reshape(-1, 3),
+        "omega_rad_s": np.array([e.omega_rad_s for e in est], dtype=np.float64),
+        "rps": np.array([e.rps for e in est], dtype=np.float64),
+        "velocity_px_s": np.array([e.velocity_px_s for e in est], dtype=np.float64).reshape(-1, 2),
+        "confidence": np.array([e.confidence for e in est], dtype=np.float32),
+    }

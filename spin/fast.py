@@ -1,0 +1,105 @@
+"""The fast spin estimator: global coarse search, then coarse-to-fine L-BFGS.
+
+1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
+   few hundred events per omega spanning a fixed rotation angle, small IWEs.
+2. The best mutually distinct grid points are refined with L-BFGS
+   (:mod:`spin.refine`) over growing rotation spans and finer IWEs, ending on the
+   whole window at full resolution; the velocity stays at the prior unless the
+   window covers enough rotation to separate spin from translation.
+3. The best refined candidate wins; the contrast margin to the runner-up (a
+   different axis or speed, e.g. an aliased omega of a symmetric texture or the
+   mirrored axis) and the contrast gain over no rotation give the confidence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from spin.objective import BallEvents, IweGeometry, contrast
+from spin.refine import maximise
+from spin.search import coarse_search, distinct_candidates, events_for_span
+
+# (rotation span rad, IWE radius px, blur sigma IWE px, events); the last level uses the whole window.
+LEVELS = ((2.0, 16.0, 1.0, 800), (6.0, 32.0, 1.0, 2000), (np.inf, 200.0, 1.0, 8000))
+
+
+@dataclass(frozen=True)
+class FastResult:
+    w_rad_s: np.ndarray
+    v_px_s: np.ndarray
+    contrast: float
+    converged: bool
+    confidence: float
+    runner_up_w_rad_s: np.ndarray | None
+
+
+def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
+    o1, o2 = np.linalg.norm(w1), np.linalg.norm(w2)
+    if min(o1, o2) <= 0:
+        return o1 == o2
+    cos = np.dot(w1, w2) / (o1 * o2)
+    return cos > np.cos(np.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
+
+
+def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
+                  omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
+                  n_candidates: int = 3, n_directions: int = 120, coarse_events: int = 400,
+                  levels=LEVELS, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+    """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
+
+    Parameters
+    ----------
+    ev : BallEvents
+    velocity_px_s : (2,)
+        Velocity prior (px/s), e.g. from the tracker.
+    velocity_known : bool
+        Whether the prior is a measurement (else 0 was assumed).
+    refine_velocity : bool or None
+        Refine v on the last level; ``None``: when the window spans at least half a
+        revolution (where rotation about an in-image axis no longer mimics
+        translation) or no prior is known.
+    """
+    v0 = np.asarray(velocity_px_s, dtype=np.float64)
+    r = ev.radius_px
+    omegas, directions, scores = coarse_search(
+        ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s,
+        n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
+    starts = distinct_candidates(omegas, directions, scores, n_candidates)
+    window_s = float(ev.tau_s.max() - ev.tau_s.min())
+    final = None
+    results = []
+    for w in starts:
+        v = v0
+        for li, (span, radius, sigma, n_ev) in enumerate(levels):
+            last = li == len(levels) - 1
+            omega = float(np.linalg.norm(w))
+            if not last and span / max(omega, 1e-9) >= window_s and len(ev) <= n_ev:
+                continue  # this level already sees the whole window: go to the last one
+            if last:
+                if final is None:
+                    final = events_for_span(ev, 1e-9, np.inf, n_ev)
+                sub = final
+            else:
+                sub = events_for_span(ev, omega, span, n_ev)
+            geometry = IweGeometry(r, min(1.0, radius / r), sigma, hemispheres)
+            rv = False
+            if last:
+                rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
+            res = maximise(sub, w, v, geometry, refine_velocity=rv)
+            w, v = res.w_rad_s, res.v_px_s
+        results.append(res)
+    results.sort(key=lambda m: -m.contrast)
+    best = results[0]
+    geometry = IweGeometry(r, min(1.0, levels[-1][1] / r), levels[-1][2], hemispheres)
+    still = contrast(final, np.zeros(3), best.v_px_s, geometry, gradient=False)
+    gain = max(0.0, 1.0 - still / max(best.contrast, 1e-30))
+    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s)), None)
+    margin = 1.0
+    if rival is not None:
+        margin = (best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    coverage = float(np.linalg.norm(best.w_rad_s)) * window_s
+    confidence = float(np.clip(gain / 0.3, 0, 1) * np.clip(margin / 0.1, 0, 1) * np.clip(coverage / 0.5, 0, 1))
+    return FastResult(best.w_rad_s, best.v_px_s, best.contrast, best.success, confidence,
+                      None if rival is None else rival.w_rad_s)

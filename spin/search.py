@@ -1,0 +1,107 @@
+"""Global initialisation: coarse search over spin axis directions and angular speed.
+
+For each angular speed on a log grid, the events nearest to ``t_ref`` spanning a
+fixed rotation angle ``span_rad`` are warped for every axis direction of a
+Fibonacci sphere grid at once (exact rotation, broadcast over events x directions)
+into small stacked IWEs; their variances form a score table over (omega, axis).
+Limiting the rotation angle makes the grid spacing needed independent of omega.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spin.objective import BallEvents, IweGeometry, _blur, iwe, lift_moving, vote
+from spin.warp import _coefficients
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` nearly uniform unit vectors, shape (n, 3)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    rho = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+
+
+def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int) -> BallEvents:
+    """At most ``n_events`` events around ``t_ref`` covering about ``span_rad`` of rotation.
+
+    Takes the events with ``|tau| <= span/(2 omega)``, evenly subsampled to
+    ``n_events``; where that span holds fewer, the ``n_events`` nearest to ``t_ref``.
+    """
+    order = np.argsort(np.abs(ev.tau_s), kind="stable")
+    inside = int(np.searchsorted(np.abs(ev.tau_s)[order], 0.5 * span_rad / max(omega_rad_s, 1e-9), side="right"))
+    if inside <= n_events:
+        return ev.take(np.sort(order[:n_events]))
+    pick = order[:inside][np.linspace(0, inside - 1, n_events).astype(np.int64)]
+    return ev.take(np.sort(pick))
+
+
+def score_directions(ev: BallEvents, omega_rad_s: float, directions: np.ndarray, velocity_px_s,
+                     geometry: IweGeometry) -> np.ndarray:
+    """IWE variance for ``w = omega * d`` for every direction ``d`` (D, 3); returns (D,)."""
+    dt = np.float32
+    (px, py, pz), _, _ = lift_moving(ev, velocity_px_s)
+    px, py, pz = (c.astype(dt)[:, None] for c in (px, py, pz))
+    n = directions.astype(dt)
+    nx, ny, nz = n[:, 0][None, :], n[:, 1][None, :], n[:, 2][None, :]
+    phi = (ev.tau_s * omega_rad_s).astype(dt)
+    a, b = _coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
+    big_a = (a * phi)[:, None]
+    big_b = (b * phi * phi)[:, None]
+    ndp = px * nx + py * ny + pz * nz
+    qx = px + big_a * (ny * pz - nz * py) + big_b * (nx * ndp - px)
+    qy = py + big_a * (nz * px - nx * pz) + big_b * (ny * ndp - py)
+    qz = pz + big_a * (nx * py - ny * px) + big_b * (nz * ndp - pz) if geometry.hemispheres else None
+    u, v = geometry.to_iwe(qx, qy, qz)
+    h, w = geometry.shape
+    img = _blur(vote(u, v, ev.weight, (h, w), len(directions)), geometry.sigma).reshape(len(directions), h * w)
+    return img.var(axis=1, dtype=np.float64)
+
+
+def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
+                  omega_ratio: float = 1.2, n_directions: int = 120, span_rad: float = 0.6,
+                  n_events: int = 400, iwe_radius_px: float = 10.0, sigma: float = 1.0,
+                  hemispheres: bool = False):
+    """Score table over the (omega, direction) grid.
+
+    Returns
+    -------
+    omegas : ndarray (M,) rad/s
+    directions : ndarray (D, 3)
+    scores : ndarray (M, D)
+        IWE variance divided by the variance without rotation for the same events
+        (comparable across rows, which use different events).
+    """
+    n_omega = int(np.ceil(np.log(omega_max_rad_s / omega_min_rad_s) / np.log(omega_ratio))) + 1
+    omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
+    directions = fibonacci_sphere(n_directions)
+    geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres)
+    scores = np.empty((n_omega, n_directions))
+    for i, om in enumerate(omegas):
+        sub = events_for_span(ev, om, span_rad, n_events)
+        still = float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64))
+        scores[i] = score_directions(sub, om, directions, velocity_px_s, geometry) / max(still, 1e-30)
+    return omegas, directions, scores
+
+
+def distinct_candidates(omegas, directions, scores, n_candidates: int, *, min_angle_deg: float = 30.0,
+                        min_ratio: float = 1.3) -> list[np.ndarray]:
+    """Best grid points as angular-velocity vectors (rad/s), mutually distinct.
+
+    Two candidates are distinct when their axes differ by more than ``min_angle_deg``
+    or their speeds by more than a factor ``min_ratio``.
+    """
+    order = np.argsort(scores, axis=None)[::-1]
+    picked: list[np.ndarray] = []
+    cos_min = np.cos(np.radians(min_angle_deg))
+    for flat in order:
+        i, j = np.unravel_index(flat, scores.shape)
+        om, d = omegas[i], directions[j]
+        if all(np.dot(d, p / np.linalg.norm(p)) < cos_min
+               or max(om, np.linalg.norm(p)) / min(om, np.linalg.norm(p)) > min_ratio for p in picked):
+            picked.append(om * d)
+            if len(picked) == n_candidates:
+                break
+    return picked

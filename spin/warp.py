@@ -1,0 +1,92 @@
+"""Lift ball events onto the sphere and rotate them to a reference time.
+
+Geometry (see ``docs/conventions.md``): camera frame X right, Y down, Z forward.
+An event at pixel ``(x, y)`` and time ``t`` on a ball of radius ``r`` whose
+centre moves as ``c(t) = c0 + v (t - t0)`` is lifted to the visible (camera-facing)
+half of the sphere::
+
+    p = (x - cx(t), y - cy(t), -sqrt(r^2 - dx^2 - dy^2))
+
+A surface point moves with ``dp/dt = omega * cross(n, p)``, so the point seen at
+``t_k`` is at ``R(n, omega (t_ref - t_k)) p`` at ``t_ref``.  Both the quaternion form
+of the seed paper and the Rodrigues form are provided; they agree to rounding.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def lift(dx_px: np.ndarray, dy_px: np.ndarray, radius_px: float) -> np.ndarray:
+    """Points on the camera-facing half sphere, shape (N, 3), from centre offsets (px).
+
+    Offsets outside the circle are put on the rim (``z = 0``).
+    """
+    z = -np.sqrt(np.maximum(radius_px * radius_px - dx_px * dx_px - dy_px * dy_px, 0.0))
+    return np.stack([dx_px, dy_px, z], axis=-1)
+
+
+def rotate_quaternion(points: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    """Rotate ``points`` (N, 3) by ``angle_rad`` (N,) about unit ``axis`` (3,): ``p' = q p q*``.
+
+    ``q = (cos(a/2), axis sin(a/2))``; evaluated as ``p' = p + 2 s (u x p) + 2 u x (u x p)``
+    with ``s = cos(a/2)``, ``u = axis sin(a/2)`` (the expanded Hamilton product).
+    """
+    half = 0.5 * np.asarray(angle_rad)[:, None]
+    s = np.cos(half)
+    u = np.asarray(axis, dtype=np.float64)[None, :] * np.sin(half)
+    uxp = np.cross(u, points)
+    return points + 2.0 * s * uxp + 2.0 * np.cross(u, uxp)
+
+
+def rotate_rodrigues(points: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
+    """Rotate ``points`` (N, 3) by rotation vectors ``rotvec`` (N, 3) (axis * angle, rad).
+
+    ``p' = p + a (theta x p) + b theta x (theta x p)`` with ``a = sin(phi)/phi`` and
+    ``b = (1 - cos(phi))/phi^2`` (Rodrigues' formula, safe at ``phi = 0``).
+    """
+    out = rotate(tuple(points.T), tuple(np.asarray(rotvec, dtype=points.dtype).T))
+    return np.stack(out, axis=-1)
+
+
+def cross(a, b):
+    """Cross product of two vectors given as component tuples ``(x, y, z)`` of arrays."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _coefficients(theta, need_c: bool):
+    phi2 = theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]
+    phi = np.sqrt(phi2)
+    small = phi < 1e-2
+    safe = np.where(small, 1.0, phi)
+    s, c = np.sin(safe), np.cos(safe)
+    a = np.where(small, 1.0 - phi2 / 6.0, s / safe)
+    b = np.where(small, 0.5 - phi2 / 24.0, (1.0 - c) / (safe * safe))
+    if not need_c:
+        return a, b
+    cc = np.where(small, 1.0 / 6.0 - phi2 / 120.0, (safe - s) / (safe * safe * safe))
+    return a, b, cc
+
+
+def rotate(p, theta, coefficients=None):
+    """Rotate points ``p`` by rotation vectors ``theta`` (component tuples of (N,) arrays).
+
+    Returns the rotated components; ``coefficients`` may pass precomputed ``(a, b)``.
+    """
+    a, b = _coefficients(theta, False) if coefficients is None else coefficients[:2]
+    txp = cross(theta, p)
+    txtxp = cross(theta, txp)
+    return tuple(p[i] + a * txp[i] + b * txtxp[i] for i in range(3))
+
+
+def left_jacobian_transpose_apply(theta, vec, coefficients=None):
+    """``J_l(theta)^T a`` per event (component tuples of (N,) arrays).
+
+    ``J_l = I + b [theta]x + c [theta]x^2`` with ``b = (1-cos)/phi^2``,
+    ``c = (phi - sin)/phi^3``; it maps a change of the rotation vector to the
+    change of the rotated point: ``d(R p) = -[R p]x J_l d theta``.
+    """
+    _, b, c = _coefficients(theta, True) if coefficients is None else coefficients
+    txa = cross(theta, vec)
+    txtxa = cross(theta, txa)
+    return tuple(vec[i] - b * txa[i] + c * txtxa[i] for i in range(3))

@@ -1,0 +1,60 @@
+"""Bad input to the spin estimator gives a clear SpinInputError."""
+
+import numpy as np
+import pytest
+
+import spin
+from capture.events import make_events
+
+
+def _events(n=3000, cx=100.0, cy=80.0, r=30.0, seed=0):
+    rng = np.random.default_rng(seed)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    rad = r * np.sqrt(rng.uniform(0, 1, n))
+    return make_events(np.sort(rng.integers(0, 2000, n)), cx + rad * np.cos(ang), cy + rad * np.sin(ang),
+                       rng.integers(0, 2, n))
+
+
+def test_too_few_events():
+    ev = _events(50)
+    with pytest.raises(spin.SpinInputError, match="only .* events inside the circle"):
+        spin.estimate_spin(ev, (100, 80), 30, min_events=200)
+
+
+def test_empty_circle():
+    ev = _events()
+    with pytest.raises(spin.SpinInputError, match="no events inside the circle"):
+        spin.estimate_spin(ev, (400, 300), 30)
+
+
+def test_circle_outside_sensor():
+    ev = _events()
+    with pytest.raises(spin.SpinInputError, match="outside the sensor"):
+        spin.estimate_spin(ev, (700, 80), 30, sensor_size=(640, 480))
+    with pytest.raises(spin.SpinInputError, match="outside the sensor"):
+        spin.estimate_spin(ev, (-50, 80), 30)
+
+
+def test_bad_radius_and_method_and_dtype():
+    ev = _events()
+    with pytest.raises(spin.SpinInputError, match="radius"):
+        spin.estimate_spin(ev, (100, 80), 0)
+    with pytest.raises(spin.SpinInputError, match="method"):
+        spin.estimate_spin(ev, (100, 80), 30, method="magic")
+    with pytest.raises(spin.SpinInputError, match="fields t, x, y, p"):
+        spin.estimate_spin(np.zeros((10, 4)), (100, 80), 30)
+    with pytest.raises(spin.SpinInputError, match="empty"):
+        spin.estimate_spin(ev[:0], (100, 80), 30)
+
+
+def test_to_columns_shapes_match_store_fields():
+    from capture.session import SPIN_FIELDS
+    est = spin.SpinEstimate(axis=np.array([0.0, 0.0, 1.0]), omega_rad_s=6.28, rps=1.0,
+                            velocity_px_s=np.array([1.0, 2.0]), t_start_us=0, t_end_us=10, n_events=5,
+                            contrast=1.0, converged=True, confidence=0.5, method="fast")
+    cols = spin.to_columns([est, est])
+    assert set(cols) == set(SPIN_FIELDS)
+    for name, (dtype, shape) in SPIN_FIELDS.items():
+        assert cols[name].shape == (2, *shape)
+        assert cols[name].dtype == np.dtype(dtype)
+    assert spin.to_columns([])["axis"].shape == (0, 3)
