@@ -79,7 +79,8 @@ def density_filter(x: np.ndarray, y: np.ndarray, *, min_neighbours: int = 2) -> 
 
 
 def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_sectors: int = 32,
-               k_outer: int = 3, min_sector_events: int = 4, n_iter: int = 3,
+               k_outer: int = 3, gap_events: int = 4, min_sector_events: int = 8, n_iter: int = 3,
+               max_events: int = 4000,
                r_range: tuple[float, float] = (3.0, 200.0), ignore: np.ndarray | None = None) -> CircleFit | None:
     """Fit the ball's rim to motion-compensated events.
 
@@ -93,11 +94,16 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         Angular sectors for the boundary search.
     k_outer : int
         In each sector the ``k_outer``-th outermost event is the boundary point
-        (robust to ``k_outer - 1`` stray events).
+        (robust to ``k_outer - 1`` stray events); it is moved outwards by
+        ``k_outer`` times the mean gap (in squared radius) to the next
+        ``gap_events`` events, which removes the inward bias of an order
+        statistic whatever the local event density.
     min_sector_events : int
         Sectors with fewer events give no boundary point.
     r_range : (float, float)
         Accepted radius range, px.
+    max_events : int
+        Larger inputs are subsampled evenly to this many events (speed).
     ignore : ndarray of bool, shape (N,), optional
         Events that cannot be boundary points (e.g. on the sensor border, where
         the outermost events are cut by the sensor rather than by the ball's rim).
@@ -110,24 +116,34 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     n = len(x)
     if n < 3 * min_sector_events:
         return None
+    if n > max_events:
+        step = n / max_events
+        sub = (np.arange(max_events) * step).astype(np.int64)
+        x, y = x[sub], y[sub]
+        ignore = None if ignore is None else ignore[sub]
     cx, cy = float(center0[0]), float(center0[1])
     r = np.nan
     rms = np.inf
     n_in = 0
+    k = k_outer
     for _ in range(n_iter):
         dx, dy = x - cx, y - cy
         rho2 = dx * dx + dy * dy
         sector = ((np.arctan2(dy, dx) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
-        order = np.lexsort((rho2, sector))
+        top = rho2.max() + 1.0
+        order = np.argsort(sector * top + rho2)
         counts = np.bincount(sector, minlength=n_sectors)
         ends = np.cumsum(counts)
-        ok = counts >= max(min_sector_events, k_outer)
+        ok = counts >= max(min_sector_events, k + gap_events)
         if ok.sum() < 5:
             return None
-        pick = order[ends[ok] - k_outer]
+        pick = order[ends[ok] - k]
+        # local density correction: the k-th outermost lies about k gaps (in rho^2) inside the rim
+        gap = (rho2[pick] - rho2[order[ends[ok] - k - gap_events]]) / gap_events
+        scale = np.sqrt((rho2[pick] + k * gap) / np.maximum(rho2[pick], 1e-9))
+        bx, by = cx + (x[pick] - cx) * scale, cy + (y[pick] - cy) * scale
         if ignore is not None:
-            pick = pick[~ignore[pick]]
-        bx, by = x[pick], y[pick]
+            bx, by = bx[~ignore[pick]], by[~ignore[pick]]
         keep = np.ones(len(bx), bool)
         for _ in range(3):
             if keep.sum() < 5:
@@ -199,7 +215,7 @@ def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, ce
             break
         x0, y0, w, h = stats[lab, :4]
         ext_px = max(w, h) * cell_px
-        if ext_px < r_range[0] or min(w, h) * cell_px > 2.0 * r_range[1] + 4 * cell_px + 2:
+        if ext_px < 1.2 * r_range[0] or min(w, h) * cell_px > 2.0 * r_range[1] + 4 * cell_px + 2:
             continue
         out.append((int(x0 * cell_px), int(y0 * cell_px), int(min((x0 + w) * cell_px, width)),
                     int(min((y0 + h) * cell_px, height))))
