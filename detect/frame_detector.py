@@ -26,6 +26,46 @@ class FrameCircle:
     score: float
 
 
+def _refine(blurred: np.ndarray, cx: float, cy: float, r: float, band_px: float = 3.0):
+    """Sub-pixel circle from the gradient-weighted rim pixels near ``(cx, cy, r)``.
+
+    Pixels within ``band_px`` of the rim whose gradient is mostly radial are
+    fitted with a gradient-magnitude-weighted algebraic circle.
+    Returns ``(cx, cy, r)`` or None.
+    """
+    h, w = blurred.shape
+    x0, y0 = max(0, int(cx - r - band_px - 1)), max(0, int(cy - r - band_px - 1))
+    x1, y1 = min(w, int(cx + r + band_px + 2)), min(h, int(cy + r + band_px + 2))
+    if x1 - x0 < 5 or y1 - y0 < 5:
+        return None
+    crop = blurred[y0:y1, x0:x1].astype(np.float32)
+    gx = cv2.Sobel(crop, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(crop, cv2.CV_32F, 0, 1, ksize=3)
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
+    dx, dy = xx - cx, yy - cy
+    d = np.hypot(dx, dy) + 1e-9
+    mag = np.hypot(gx, gy)
+    radial = np.abs(gx * dx + gy * dy) / (d * (mag + 1e-9))
+    sel = (np.abs(d - r) <= band_px) & (radial > 0.8)
+    if sel.sum() < 12:
+        return None
+    wgt = mag[sel].astype(np.float64)
+    sel &= mag >= 0.3 * wgt.max()
+    if sel.sum() < 12:
+        return None
+    px, py, wgt = xx[sel], yy[sel], mag[sel].astype(np.float64)
+    mx, my = np.average(px, weights=wgt), np.average(py, weights=wgt)
+    u, v = px - mx, py - my
+    sw = np.sqrt(wgt)
+    a = np.stack([u, v, np.ones_like(u)], axis=1) * sw[:, None]
+    sol, *_ = np.linalg.lstsq(a, (u * u + v * v) * sw, rcond=None)
+    ncx, ncy = sol[0] / 2 + mx, sol[1] / 2 + my
+    nr = float(np.sqrt(max(sol[2] + (sol[0] / 2) ** 2 + (sol[1] / 2) ** 2, 0.0)))
+    if np.hypot(ncx - cx, ncy - cy) > band_px or abs(nr - r) > band_px:
+        return None
+    return float(ncx), float(ncy), nr
+
+
 def _gray(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.ndim == 3:
@@ -98,6 +138,9 @@ class FrameDetector:
         out = []
         yy, xx = np.mgrid[y0:y1, x0:x1]
         for rank, (cx, cy, r) in enumerate(circles.reshape(-1, 3)[: 4 * max_circles]):
+            fine = _refine(crop, float(cx), float(cy), float(r))
+            if fine is not None:
+                cx, cy, r = fine
             cx, cy = cx + x0, cy + y0
             if use_fg:
                 disk = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r

@@ -208,3 +208,51 @@ def test_bad_arguments_raise():
         BallTracker(W, H, slice_us=3000, block_us=20000)
     with pytest.raises(TypeError, match="EVENT_DTYPE"):
         BallTracker(W, H).update(np.zeros(3))
+
+
+def _frames(n, c0, v_px_frame, r, seed=12):
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    bg = cv2.GaussianBlur(rng.uniform(0, 255, (H, W)).astype(np.float32), (0, 0), 3)
+    bg = cv2.normalize(bg, None, 60, 160, cv2.NORM_MINMAX)
+    out, truth = [], []
+    for k in range(n):
+        img = bg.copy()
+        cx, cy = c0[0] + v_px_frame[0] * k, c0[1] + v_px_frame[1] * k
+        cv2.circle(img, (int(round(cx * 16)), int(round(cy * 16))), int(r * 16), 230, -1, cv2.LINE_AA, shift=4)
+        out.append(np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8))
+        truth.append((cx, cy))
+    return out, np.array(truth)
+
+
+def test_frame_detector_finds_drawn_ball_subpixel():
+    from detect.frame_detector import FrameDetector
+
+    frames, truth = _frames(8, (40.3, 100.6), (25.0, 5.0), 15)
+    fd = FrameDetector((8, 30))
+    for k, img in enumerate(frames[:-1]):
+        best = fd.detect(img)
+        assert best, f"no circle in frame {k}"
+        if k >= 4:  # background model warmed up: the ball is the top circle
+            assert np.hypot(best[0].cx - truth[k, 0], best[0].cy - truth[k, 1]) < 0.5
+            assert abs(best[0].r - 15.5) < 0.6
+    roi = fd.detect(frames[-1], roi=(truth[-1, 0] + 5, truth[-1, 1] - 5, 30))
+    assert len(roi) >= 1 and np.hypot(roi[0].cx - truth[-1, 0], roi[0].cy - truth[-1, 1]) < 0.5
+    assert fd.detect(frames[-1], roi=(250, 30, 20)) == []
+
+
+def test_frames_are_fused_into_the_track():
+    rng = np.random.default_rng(13)
+    c0, v = (40.3, 100.6), (2500.0, 500.0)  # 25 px and 5 px per 10 ms frame
+    frames, truth = _frames(8, c0, (25.0, 5.0), 15)
+    t_frames = np.arange(8) * 10_000 + 500
+    ev = _events([_ball_events(rng, 500, 70_500, c0, v, 15.5, rate=1e6)] + _clutter(rng, 0, 75_000, blob=False))
+    both = BallTracker(W, H, r_range=(5, 40))
+    for img, t in zip(frames, t_frames):
+        both.update_frame(img, int(t))
+    both.update(ev)
+    tr = both.finish()
+    assert np.isin(t_frames[4:], tr.t_us).sum() >= 2  # frame updates became rows
+    ex, ey = _truth(tr.t_us, c0, v, t0=500)
+    assert np.median(np.hypot(tr.cx - ex, tr.cy - ey)) < 0.5
