@@ -1,0 +1,235 @@
+"""Ball detection in short slices of events (1-2 ms).
+
+Two steps, both vectorised over the events of a slice:
+
+* :func:`find_candidates` builds a coarse event-density map (cells of
+  ``cell_px`` pixels), thresholds it against the slice's noise level and keeps
+  the connected components whose size fits a ball of the expected radius range.
+* :func:`fit_circle` fits a circle to the events of one candidate after motion
+  compensation (events moved to a reference time along the centre velocity).
+  A spinning textured ball fires over its whole disk and a translating one
+  mostly at its leading and trailing edges; in both cases the *outer boundary*
+  of the compensated events is the ball's rim, so the fit takes, in each of
+  ``n_sectors`` angular sectors around the current centre, the outermost events
+  (robustly: the ``k_outer``-th from outside) and fits a circle to those
+  boundary points with outlier rejection. The score says how circle-like the
+  boundary is (sector coverage, boundary residual, events inside vs around).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CircleFit:
+    """Result of a circle fit on events.
+
+    Attributes
+    ----------
+    cx, cy, r : float
+        Circle centre and radius, px, at the reference time of the fit.
+    score : float
+        Circle-likeness 0..1.
+    sigma_px : float
+        Standard deviation of the centre estimate, px.
+    n_events : int
+        Events used (after noise filtering).
+    """
+
+    cx: float
+    cy: float
+    r: float
+    score: float
+    sigma_px: float
+    n_events: int
+
+
+def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Algebraic least-squares circle through points ``(x, y)`` -> ``(cx, cy, r)``."""
+    mx, my = x.mean(), y.mean()
+    u, v = x - mx, y - my
+    a = np.stack([u, v, np.ones_like(u)], axis=1)
+    b = u * u + v * v
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    cx, cy = sol[0] / 2.0, sol[1] / 2.0
+    r2 = sol[2] + cx * cx + cy * cy
+    return float(cx + mx), float(cy + my), float(np.sqrt(max(r2, 0.0)))
+
+
+def density_filter(x: np.ndarray, y: np.ndarray, *, min_neighbours: int = 2) -> np.ndarray:
+    """Mask of events with at least ``min_neighbours`` other events in their 3x3 pixel neighbourhood.
+
+    Removes isolated noise events. ``x``, ``y`` may be float (motion-compensated); they
+    are rounded to pixels on a local grid.
+    """
+    if len(x) == 0:
+        return np.zeros(0, bool)
+    xi = np.rint(x).astype(np.int64)
+    yi = np.rint(y).astype(np.int64)
+    x0, y0 = xi.min() - 1, yi.min() - 1
+    w, h = int(xi.max() - x0 + 2), int(yi.max() - y0 + 2)
+    idx = (yi - y0) * w + (xi - x0)
+    img = np.bincount(idx, minlength=w * h).astype(np.float32).reshape(h, w)
+    nb = cv2.boxFilter(img, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return nb.reshape(-1)[idx] - 1.0 >= min_neighbours
+
+
+def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_sectors: int = 32,
+               k_outer: int = 3, gap_events: int = 4, min_sector_events: int = 8, n_iter: int = 3,
+               max_events: int = 4000,
+               r_range: tuple[float, float] = (3.0, 200.0), ignore: np.ndarray | None = None) -> CircleFit | None:
+    """Fit the ball's rim to motion-compensated events.
+
+    Parameters
+    ----------
+    x, y : ndarray of float, shape (N,)
+        Event positions (px) already moved to the fit's reference time.
+    center0 : (float, float)
+        Starting centre, px (e.g. the events' centroid or the track prediction).
+    n_sectors : int
+        Angular sectors for the boundary search.
+    k_outer : int
+        In each sector the ``k_outer``-th outermost event is the boundary point
+        (robust to ``k_outer - 1`` stray events); it is moved outwards by
+        ``k_outer`` times the mean gap (in squared radius) to the next
+        ``gap_events`` events, which removes the inward bias of an order
+        statistic whatever the local event density.
+    min_sector_events : int
+        Sectors with fewer events give no boundary point.
+    r_range : (float, float)
+        Accepted radius range, px.
+    max_events : int
+        Larger inputs are subsampled evenly to this many events (speed).
+    ignore : ndarray of bool, shape (N,), optional
+        Events that cannot be boundary points (e.g. on the sensor border, where
+        the outermost events are cut by the sensor rather than by the ball's rim).
+
+    Returns
+    -------
+    CircleFit or None
+        None if there are too few boundary points or the radius is out of range.
+    """
+    n = len(x)
+    if n < 3 * min_sector_events:
+        return None
+    if n > max_events:
+        step = n / max_events
+        sub = (np.arange(max_events) * step).astype(np.int64)
+        x, y = x[sub], y[sub]
+        ignore = None if ignore is None else ignore[sub]
+    cx, cy = float(center0[0]), float(center0[1])
+    r = np.nan
+    rms = np.inf
+    n_in = 0
+    k = k_outer
+    for _ in range(n_iter):
+        dx, dy = x - cx, y - cy
+        rho2 = dx * dx + dy * dy
+        sector = ((np.arctan2(dy, dx) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+        top = rho2.max() + 1.0
+        order = np.argsort(sector * top + rho2)
+        counts = np.bincount(sector, minlength=n_sectors)
+        ends = np.cumsum(counts)
+        ok = counts >= max(min_sector_events, k + gap_events)
+        if ok.sum() < 5:
+            return None
+        pick = order[ends[ok] - k]
+        # local density correction: the k-th outermost lies about k gaps (in rho^2) inside the rim
+        gap = (rho2[pick] - rho2[order[ends[ok] - k - gap_events]]) / gap_events
+        scale = np.sqrt((rho2[pick] + k * gap) / np.maximum(rho2[pick], 1e-9))
+        bx, by = cx + (x[pick] - cx) * scale, cy + (y[pick] - cy) * scale
+        if ignore is not None:
+            bx, by = bx[~ignore[pick]], by[~ignore[pick]]
+        keep = np.ones(len(bx), bool)
+        for _ in range(3):
+            if keep.sum() < 5:
+                return None
+            fcx, fcy, fr = _kasa(bx[keep], by[keep])
+            res = np.hypot(bx - fcx, by - fcy) - fr
+            mad = np.median(np.abs(res[keep]))
+            new_keep = np.abs(res) <= max(1.5, 3.0 * 1.4826 * mad)
+            if np.array_equal(new_keep, keep):
+                break
+            keep = new_keep
+        if keep.sum() < 5:
+            return None
+        cx, cy, r = fcx, fcy, fr
+        rms = float(np.sqrt(np.mean(res[keep] ** 2)))
+        n_in = int(keep.sum())
+    if not (r_range[0] <= r <= r_range[1]):
+        return None
+    d2 = (x - cx) ** 2 + (y - cy) ** 2
+    inside = float(np.mean(d2 <= (r + 1.5) ** 2))
+    coverage = n_in / n_sectors
+    sigma_rim = max(1.0, 0.04 * r)
+    score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
+    sigma_px = float(np.sqrt(2.0 / n_in) * max(rms, 0.3))
+    return CircleFit(cx, cy, r, float(score), sigma_px, n)
+
+
+def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, cell_px: int = 4,
+                    r_range: tuple[float, float] = (5.0, 100.0), min_events: int = 30,
+                    max_candidates: int = 4) -> list[tuple[int, int, int, int]]:
+    """Dense event clusters that could be a ball.
+
+    Parameters
+    ----------
+    x, y : ndarray of int, shape (N,)
+        Pixel coordinates of one slice's events (hot pixels already removed).
+    width, height : int
+        Sensor size, px.
+    cell_px : int
+        Cell size of the density map, px.
+    r_range : (float, float)
+        Expected ball radius range, px (the cluster's extent must fit it).
+    min_events : int
+        Least events in a cluster.
+    max_candidates : int
+        Most clusters returned (densest first).
+
+    Returns
+    -------
+    list of (x0, y0, x1, y1)
+        Cluster bounding boxes in pixels (x1, y1 exclusive), densest first.
+    """
+    if len(x) < min_events:
+        return []
+    gw, gh = -(-width // cell_px), -(-height // cell_px)
+    cell = (y.astype(np.int64) // cell_px) * gw + x.astype(np.int64) // cell_px
+    dens = np.bincount(cell, minlength=gw * gh).astype(np.float32).reshape(gh, gw)
+    sm = cv2.blur(dens, (3, 3))
+    lam = len(x) / (gw * gh)
+    thr = lam + 4.0 * np.sqrt(lam) + 1.0
+    binary = (sm > thr).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    if n <= 1:
+        return []
+    sums = np.bincount(labels.reshape(-1), weights=dens.reshape(-1), minlength=n)
+    out = []
+    for lab in np.argsort(-sums[1:]) + 1:
+        if sums[lab] < min_events:
+            break
+        x0, y0, w, h = stats[lab, :4]
+        ext_px = max(w, h) * cell_px
+        if ext_px < 1.2 * r_range[0] or min(w, h) * cell_px > 2.0 * r_range[1] + 4 * cell_px + 2:
+            continue
+        out.append((int(x0 * cell_px), int(y0 * cell_px), int(min((x0 + w) * cell_px, width)),
+                    int(min((y0 + h) * cell_px, height))))
+        if len(out) >= max_candidates:
+            break
+    return out
+
+
+def estimate_velocity(x: np.ndarray, y: np.ndarray, t_us: np.ndarray) -> tuple[float, float]:
+    """Centroid velocity (px/s) from the first and second halves (in time) of a cluster's events."""
+    if len(t_us) < 20:
+        return 0.0, 0.0
+    mid = len(t_us) // 2
+    dt_s = (t_us[mid:].mean() - t_us[:mid].mean()) * 1e-6
+    if dt_s <= 0:
+        return 0.0, 0.0
+    return float((x[mid:].mean() - x[:mid].mean()) / dt_s), float((y[mid:].mean() - y[:mid].mean()) / dt_s)

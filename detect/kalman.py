@@ -1,0 +1,126 @@
+"""Kalman filter and RTS smoother for the ball's image circle.
+
+State ``[x, y, vx, vy, ax, ay, r]`` (px, px/s, px/s², px). Two motion models:
+
+* ``"ca"``: constant acceleration driven by white jerk noise (the acceleration,
+  e.g. gravity and drag as seen in the image, is estimated);
+* ``"cv"``: constant velocity plus a known image acceleration ``gravity_px_s2``
+  (the acceleration states are pinned to it), driven by white acceleration noise.
+
+The radius follows a random walk. Measurements are ``[cx, cy, r]`` with their own
+standard deviations (events and frames differ).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_H = np.zeros((3, 7))
+_H[0, 0] = _H[1, 1] = _H[2, 6] = 1.0
+
+
+class CircleKalman:
+    """Kalman filter over one flight, keeping the history needed for smoothing.
+
+    Parameters
+    ----------
+    t_us : int
+        Time of the first measurement, µs.
+    z : (float, float, float)
+        First measurement ``(cx, cy, r)``, px.
+    velocity_px_s : (float, float)
+        Initial velocity guess, px/s, with standard deviation ``velocity_sigma_px_s``.
+    model : {"ca", "cv"}
+        Motion model (see module docstring).
+    gravity_px_s2 : (float, float)
+        Known (``"cv"``) or initial (``"ca"``) image acceleration, px/s².
+    q_px_s3 : float
+        Process noise density: jerk (``"ca"``) in px/s³, or acceleration (``"cv"``)
+        in px/s² per √s.
+    q_r_px : float
+        Radius random-walk density, px per √s.
+    sigma_px : float
+        Standard deviation of the first measurement, px.
+    """
+
+    def __init__(self, t_us: int, z, *, velocity_px_s=(0.0, 0.0), velocity_sigma_px_s: float = 2000.0,
+                 model: str = "ca", gravity_px_s2=(0.0, 0.0), accel_sigma_px_s2: float = 5000.0,
+                 q_px_s3: float = 2.0e5, q_r_px: float = 20.0, sigma_px: float = 1.0):
+        if model not in ("ca", "cv"):
+            raise ValueError(f"model must be 'ca' or 'cv', got {model!r}")
+        self.model = model
+        self.q = float(q_px_s3)
+        self.q_r = float(q_r_px)
+        self.t_us = int(t_us)
+        self.x = np.array([z[0], z[1], velocity_px_s[0], velocity_px_s[1], gravity_px_s2[0],
+                           gravity_px_s2[1], z[2]], dtype=np.float64)
+        a_var = accel_sigma_px_s2 ** 2 if model == "ca" else 0.0
+        self.P = np.diag([sigma_px ** 2, sigma_px ** 2, velocity_sigma_px_s ** 2, velocity_sigma_px_s ** 2,
+                          a_var, a_var, sigma_px ** 2])
+        # history for RTS smoothing: (t_us, x_prior, P_prior, F, x_post, P_post)
+        self.history: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = [
+            (self.t_us, self.x.copy(), self.P.copy(), np.eye(7), self.x.copy(), self.P.copy())]
+
+    def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        f = np.eye(7)
+        q = np.zeros((7, 7))
+        for i in (0, 1):
+            p, v, a = i, i + 2, i + 4
+            f[p, v] = dt
+            f[p, a] = 0.5 * dt * dt
+            f[v, a] = dt
+            if self.model == "ca":
+                blk = self.q ** 2 * np.array([[dt ** 5 / 20, dt ** 4 / 8, dt ** 3 / 6],
+                                              [dt ** 4 / 8, dt ** 3 / 3, dt ** 2 / 2],
+                                              [dt ** 3 / 6, dt ** 2 / 2, dt]])
+                idx = [p, v, a]
+            else:
+                blk = self.q ** 2 * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+                idx = [p, v]
+            q[np.ix_(idx, idx)] = blk
+        q[6, 6] = self.q_r ** 2 * dt
+        return f, q
+
+    def predict(self, t_us: int) -> tuple[np.ndarray, np.ndarray]:
+        """State and covariance predicted to ``t_us`` (does not change the filter)."""
+        f, q = self._transition((t_us - self.t_us) * 1e-6)
+        return f @ self.x, f @ self.P @ f.T + q
+
+    def innovation(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> float:
+        """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""
+        x, p = self.predict(t_us)
+        nu = np.asarray(z[:2], float) - x[:2]
+        s = p[:2, :2] + np.eye(2) * sigma_px ** 2
+        return float(nu @ np.linalg.solve(s, nu))
+
+    def update(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> None:
+        """Predict to ``t_us`` and fuse measurement ``z = (cx, cy, r)``."""
+        f, q = self._transition((t_us - self.t_us) * 1e-6)
+        xp = f @ self.x
+        pp = f @ self.P @ f.T + q
+        r = np.diag([sigma_px ** 2, sigma_px ** 2, sigma_r_px ** 2])
+        s = _H @ pp @ _H.T + r
+        k = np.linalg.solve(s, _H @ pp).T
+        self.x = xp + k @ (np.asarray(z, float) - _H @ xp)
+        self.P = (np.eye(7) - k @ _H) @ pp
+        self.P = 0.5 * (self.P + self.P.T)
+        self.t_us = int(t_us)
+        self.history.append((self.t_us, xp, pp, f, self.x.copy(), self.P.copy()))
+
+    def smoothed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rauch-Tung-Striebel smoothed states at every update.
+
+        Returns
+        -------
+        t_us : ndarray of int64, shape (K,)
+        states : ndarray of float64, shape (K, 7)
+        """
+        n = len(self.history)
+        xs = np.empty((n, 7))
+        xs[-1] = self.history[-1][4]
+        for k in range(n - 2, -1, -1):
+            _, _, _, _, xk, pk = self.history[k]
+            _, xp1, pp1, f1, _, _ = self.history[k + 1]
+            c = pk @ f1.T @ np.linalg.pinv(pp1)
+            xs[k] = xk + c @ (xs[k + 1] - xp1)
+        return np.array([h[0] for h in self.history], dtype=np.int64), xs

@@ -1,0 +1,370 @@
+"""Ball tracker: event-slice and frame detections fused by a Kalman filter.
+
+Events are processed in time blocks (``block_us``, for the hot-pixel map) cut
+into slices (``slice_us``, 1-2 ms) on a fixed time grid, so the result does not
+depend on how the stream is batched. In each slice:
+
+* while no flight is active, the density map of the slice gives candidate
+  clusters; each is motion-compensated with its own centroid velocity and
+  fitted with a circle; the best circle-like one (score >= ``min_score``,
+  radius in ``r_range``) becomes a tentative detection, and ``confirm_slices``
+  consistent detections in a row start a new flight;
+* during a flight, the Kalman prediction gives the search region, the
+  velocity for motion compensation and the gate; a gated fit updates the
+  filter. The flight ends when the ball leaves the sensor, after
+  ``max_misses`` slices without a fit, or when confident fits fall outside the
+  gate twice in a row (hit or bounce); the next slices search again and start
+  a new flight.
+
+Frames (already on the event clock) are searched with Hough circles around the
+prediction and fused as measurements with ``frame_sigma_px``. ``finish()``
+returns the Rauch-Tung-Striebel smoothed track (the best velocity for spin
+estimation); ``update()`` returns the causal (filtered) rows as they come.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+
+import numpy as np
+
+from capture.events import EVENT_DTYPE
+from detect.event_detector import CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle
+from detect.frame_detector import FrameDetector
+from detect.hot_pixels import HotPixelMap
+from detect.kalman import CircleKalman
+from detect.track import Track
+
+
+class BallTracker:
+    """Streaming ball tracker over an event stream and optional frames.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size, px.
+    slice_us : int
+        Detection slice length, µs.
+    block_us : int
+        Hot-pixel block length, µs (a multiple of ``slice_us``); also the
+        latency of :meth:`update`.
+    r_range : (float, float)
+        Expected ball radius range, px.
+    min_score : float
+        Least circle score (0..1) of a detection.
+    confirm_slices : int
+        Consistent detections in a row that start a flight.
+    max_misses : int
+        Slices in a row without a detection that end a flight.
+    model : {"ca", "cv"}
+        Kalman motion model (see :mod:`detect.kalman`).
+    gravity_px_s2 : (float, float)
+        Image acceleration of gravity, px/s² (known for ``"cv"``, initial for ``"ca"``).
+    q_px_s3 : float
+        Kalman process-noise density.
+    gate_chi2 : float
+        Gate on the squared Mahalanobis distance of the centre.
+    frame_sigma_px : float
+        Standard deviation of a frame detection's centre, px.
+    hot_pixels : bool
+        Remove hot pixels.
+    smooth : bool
+        Whether :meth:`finish` smooths the track (RTS); else it returns the filtered rows.
+    """
+
+    def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
+                 r_range=(5.0, 100.0), min_score: float = 0.35, confirm_slices: int = 3, max_misses: int = 3,
+                 model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 2.0e5, gate_chi2: float = 25.0,
+                 cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True):
+        if width <= 0 or height <= 0:
+            raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
+        if slice_us <= 0 or block_us % slice_us:
+            raise ValueError(f"block_us ({block_us}) must be a positive multiple of slice_us ({slice_us})")
+        if not 0 < r_range[0] < r_range[1]:
+            raise ValueError(f"r_range must be (min, max) with 0 < min < max, got {r_range}")
+        self.width, self.height = int(width), int(height)
+        self.slice_us, self.block_us = int(slice_us), int(block_us)
+        self.r_range = (float(r_range[0]), float(r_range[1]))
+        self.min_score = float(min_score)
+        self.confirm_slices = int(confirm_slices)
+        self.max_misses = int(max_misses)
+        self.kf_opts = dict(model=model, gravity_px_s2=tuple(gravity_px_s2), q_px_s3=q_px_s3)
+        if model not in ("ca", "cv"):
+            raise ValueError(f"model must be 'ca' or 'cv', got {model!r}")
+        self.gate_chi2 = float(gate_chi2)
+        self.cell_px = int(cell_px)
+        self.frame_sigma_px = float(frame_sigma_px)
+        self.smooth = bool(smooth)
+        self._hot = HotPixelMap(width, height) if hot_pixels else None
+        self._frames = FrameDetector(self.r_range)
+        self._frame_queue: list = []
+        self._frame_seq = itertools.count()
+        self._pending: list[np.ndarray] = []
+        self._block0: int | None = None
+        self._kf: CircleKalman | None = None
+        self._scores: list[float] = []
+        self._flight = -1
+        self._misses = 0
+        self._outliers = 0
+        self._tentative: list[tuple[int, CircleFit, tuple[float, float]]] = []
+        self._done: list[tuple[int, CircleKalman, list[float]]] = []
+        self._new_rows: list[tuple] = []
+        self.frames_skipped = 0
+        """Frames that came after the events of their time had been processed."""
+
+    # ------------------------------------------------------------------ public API
+    def update(self, events: np.ndarray) -> Track:
+        """Feed a time-sorted batch of events; returns the track rows completed by it (filtered)."""
+        events = np.asarray(events)
+        if events.dtype != EVENT_DTYPE:
+            raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
+        if len(events):
+            if self._block0 is None:
+                self._block0 = int(events["t"][0]) // self.block_us * self.block_us
+            self._pending.append(events)
+            self._run(final=False)
+        return self._take_rows()
+
+    def update_frame(self, image: np.ndarray, t_us: int) -> None:
+        """Queue a frame whose (mid-exposure) time on the event clock is ``t_us``."""
+        heapq.heappush(self._frame_queue, (int(t_us), next(self._frame_seq), image))
+
+    def finish(self) -> Track:
+        """Process what is left and return the whole track (smoothed unless ``smooth=False``)."""
+        self._run(final=True)
+        self._frames_until(None)
+        self._end_flight()
+        self._take_rows()
+        parts = [self._flight_rows(fid, kf, scores) for fid, kf, scores in self._done]
+        if not parts:
+            return Track.empty()
+        cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        return Track(**cols)
+
+    # ------------------------------------------------------------------ blocks and slices
+    def _run(self, final: bool) -> None:
+        if not self._pending:
+            return
+        ev = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
+        self._pending = []
+        t = ev["t"]
+        t_last = int(t[-1])
+        i = 0
+        while i < len(ev):
+            b0 = self._block0 + (int(t[i]) - self._block0) // self.block_us * self.block_us
+            b1 = b0 + self.block_us
+            if b1 > t_last and not final:
+                break
+            j = int(np.searchsorted(t, b1, side="left"))
+            self._process_block(ev[i:j], b0)
+            i = j
+        if i < len(ev):
+            self._pending = [ev[i:]]
+
+    def _process_block(self, ev: np.ndarray, b0: int) -> None:
+        x = ev["x"].astype(np.int32)
+        y = ev["y"].astype(np.int32)
+        t = ev["t"]
+        if self._hot is not None:
+            self._hot.update(x, y)
+            keep = self._hot.keep(x, y)
+            x, y, t = x[keep], y[keep], t[keep]
+        bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
+        idx = np.searchsorted(t, bounds, side="left")
+        for k in range(len(bounds) - 1):
+            s0, s1 = int(bounds[k]), int(bounds[k + 1])
+            m = (s0 + s1) // 2
+            self._frames_until(m)
+            i0, i1 = idx[k], idx[k + 1]
+            self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], m)
+
+    def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, m: int) -> None:
+        if self._kf is not None:
+            self._track_slice(t, x, y, m)
+        if self._kf is None:
+            self._search_slice(t, x, y, m)
+
+    def _fit(self, t, x, y, m, center0, velocity, r_range, sel=None) -> CircleFit | None:
+        dt_s = (t - m) * 1e-6
+        xc = x - velocity[0] * dt_s
+        yc = y - velocity[1] * dt_s
+        border = (x == 0) | (y == 0) | (x == self.width - 1) | (y == self.height - 1)
+        if sel is not None:
+            xc, yc, border = xc[sel], yc[sel], border[sel]
+        good = density_filter(xc, yc, min_neighbours=1)
+        if center0 is None:
+            if not good.any():
+                return None
+            center0 = (float(xc[good].mean()), float(yc[good].mean()))
+        return fit_circle(xc[good], yc[good], center0=center0, r_range=r_range, ignore=border[good])
+
+    def _track_slice(self, t, x, y, m) -> None:
+        kf = self._kf
+        state, cov = kf.predict(m)
+        cx, cy, vx, vy, r = state[0], state[1], state[2], state[3], state[6]
+        if cx < -r or cy < -r or cx > self.width + r or cy > self.height + r:
+            self._end_flight()
+            return
+        sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
+        reach = 1.4 * r + 4.0 + 3.0 * sig
+        dt_s = (t - m) * 1e-6
+        dx = x - vx * dt_s - cx
+        dy = y - vy * dt_s - cy
+        sel = dx * dx + dy * dy < reach * reach
+        r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
+        fit = self._fit(t, x, y, m, (cx, cy), (vx, vy), r_rng, sel) if sel.sum() >= 12 else None
+        if fit is None or fit.score < self.min_score:
+            self._misses += 1
+            if self._misses >= self.max_misses:
+                self._end_flight()
+            return
+        sigma_r = 1.5 * fit.sigma_px
+        d2 = kf.innovation(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+        dist = np.hypot(fit.cx - cx, fit.cy - cy)
+        if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
+            kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+            self._scores.append(fit.score)
+            self._emit(m)
+            self._misses = self._outliers = 0
+        else:
+            self._outliers += 1
+            self._misses += 1
+            if self._outliers >= 2 or self._misses >= self.max_misses:
+                self._end_flight()
+
+    def _search_slice(self, t, x, y, m) -> None:
+        best: tuple[CircleFit, tuple[float, float]] | None = None
+        margin = 2 * self.cell_px
+        for x0, y0, x1, y1 in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
+                                              r_range=self.r_range):
+            sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
+            v0 = estimate_velocity(x[sel].astype(np.float64), y[sel].astype(np.float64), t[sel])
+            fit = self._fit(t, x, y, m, None, v0, self.r_range, sel)
+            if fit is not None and fit.score >= self.min_score and (best is None or fit.score > best[0].score):
+                best = (fit, v0)
+        if best is None:
+            if self._tentative and m - self._tentative[-1][0] > 2 * self.slice_us:
+                self._tentative = []
+            return
+        fit, v0 = best
+        if self._tentative:
+            tm, tf, tv = self._tentative[-1]
+            dt_s = (m - tm) * 1e-6
+            px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
+            ok = (np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25
+                  and m - tm <= 2 * self.slice_us)
+            if not ok:
+                self._tentative = []
+            elif len(self._tentative) >= 1:
+                v0 = ((fit.cx - self._tentative[0][1].cx) / ((m - self._tentative[0][0]) * 1e-6),
+                      (fit.cy - self._tentative[0][1].cy) / ((m - self._tentative[0][0]) * 1e-6))
+        self._tentative.append((m, fit, v0))
+        if len(self._tentative) >= self.confirm_slices:
+            self._start_flight()
+
+    def _start_flight(self) -> None:
+        (t0, f0, _), *rest = self._tentative
+        v = self._tentative[-1][2]
+        self._flight += 1
+        self._kf = CircleKalman(t0, (f0.cx, f0.cy, f0.r), velocity_px_s=v,
+                                velocity_sigma_px_s=0.2 * np.hypot(*v) + 50.0 * f0.r, sigma_px=f0.sigma_px,
+                                **self.kf_opts)
+        self._scores = [f0.score]
+        self._emit(t0)
+        for tm, f, _ in rest:
+            self._kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
+            self._scores.append(f.score)
+            self._emit(tm)
+        self._tentative = []
+        self._misses = self._outliers = 0
+
+    def _end_flight(self) -> None:
+        if self._kf is not None:
+            self._done.append((self._flight, self._kf, self._scores))
+        self._kf = None
+        self._scores = []
+        self._misses = self._outliers = 0
+
+    # ------------------------------------------------------------------ frames
+    def _frames_until(self, t_us: int | None) -> None:
+        while self._frame_queue and (t_us is None or self._frame_queue[0][0] < t_us):
+            tf, _, image = heapq.heappop(self._frame_queue)
+            self._process_frame(image, tf)
+
+    def _process_frame(self, image: np.ndarray, t_us: int) -> None:
+        kf = self._kf
+        if kf is None:
+            self._frames.detect(image)  # keeps the background model current
+            return
+        if t_us < kf.t_us:
+            self.frames_skipped += 1
+            self._frames.detect(image)
+            return
+        state, cov = kf.predict(t_us)
+        cx, cy, r = state[0], state[1], state[6]
+        half = 1.5 * r + 8.0 + 3.0 * float(np.sqrt(cov[0, 0] + cov[1, 1]))
+        circles = self._frames.detect(image, roi=(cx, cy, half), r_range=(0.7 * r, 1.3 * r + 1.0))
+        if not circles:
+            return
+        c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
+        sig_r = 1.5 * self.frame_sigma_px
+        d2 = kf.innovation(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+        if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
+            kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+            self._scores.append(c.score)
+            self._emit(t_us)
+
+    # ------------------------------------------------------------------ rows
+    def _emit(self, t_us: int) -> None:
+        s = self._kf.x
+        self._new_rows.append((t_us, s[0], s[1], s[6], s[2], s[3], self._scores[-1], self._flight))
+
+    def _take_rows(self) -> Track:
+        rows, self._new_rows = self._new_rows, []
+        if not rows:
+            return Track.empty()
+        cols = list(zip(*rows))
+        return Track(t_us=cols[0], cx=cols[1], cy=cols[2], r=cols[3], vx=cols[4], vy=cols[5],
+                     score=cols[6], flight=cols[7])
+
+    def _flight_rows(self, fid: int, kf: CircleKalman, scores: list[float]) -> dict[str, np.ndarray]:
+        if self.smooth:
+            t, xs = kf.smoothed()
+        else:
+            t = np.array([h[0] for h in kf.history], np.int64)
+            xs = np.array([h[4] for h in kf.history])
+        return dict(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
+                    score=np.asarray(scores, np.float32), flight=np.full(len(t), fid, np.int32))
+
+
+def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, frame_times_us=None,
+               **opts) -> Track:
+    """Track the ball through a recording.
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+        Time-sorted events.
+    width, height : int
+        Sensor size, px.
+    frames : sequence of ndarray, optional
+        Camera frames (grey or BGR) in the event camera's pixel geometry.
+    frame_times_us : array_like of int, optional
+        Mid-exposure time of each frame on the event clock, µs (required with ``frames``).
+    **opts
+        Options of :class:`BallTracker`.
+
+    Returns
+    -------
+    Track
+        One row per fused detection, smoothed; empty if no ball was found.
+    """
+    tracker = BallTracker(width, height, **opts)
+    if frames is not None:
+        if frame_times_us is None or len(frame_times_us) != len(frames):
+            raise ValueError("frame_times_us must be given with frames, one time per frame")
+        for image, t in zip(frames, frame_times_us):
+            tracker.update_frame(image, int(t))
+    tracker.update(events)
+    return tracker.finish()

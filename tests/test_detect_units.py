@@ -1,0 +1,258 @@
+"""Detection building blocks and the tracker on simple synthetic events.
+
+The inputs are drawn directly (uniform points on a disk or near a rim, noise,
+hot pixels, an elongated blob), not rendered: they check the geometry and the
+logic, the simulator-based tests check realism.
+"""
+
+import numpy as np
+import pytest
+
+from capture.events import empty_events, make_events
+from detect import BallTracker, Track, track_ball
+from detect.event_detector import density_filter, find_candidates, fit_circle
+from detect.hot_pixels import HotPixelMap
+from detect.kalman import CircleKalman
+
+W, H = 320, 240
+
+
+def _disk(rng, n, cx, cy, r, ring=False):
+    a = rng.uniform(0, 2 * np.pi, n)
+    rr = r - rng.uniform(0, 1.0, n) if ring else r * np.sqrt(rng.uniform(0, 1, n))
+    return cx + rr * np.cos(a), cy + rr * np.sin(a)
+
+
+def _ball_events(rng, t0, t1, c0, v, r, rate=2e6):
+    n = int(rate * (t1 - t0) * 1e-6)
+    t = np.sort(rng.integers(t0, t1, n))
+    x, y = _disk(rng, n, 0.0, 0.0, r)
+    x = np.floor(x + c0[0] + v[0] * (t - t0) * 1e-6 + 0.5)
+    y = np.floor(y + c0[1] + v[1] * (t - t0) * 1e-6 + 0.5)
+    ok = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+    return t[ok], x[ok], y[ok]
+
+
+def _clutter(rng, t0, t1, *, noise_rate=2e5, hot=10, blob=True):
+    parts = []
+    n = int(noise_rate * (t1 - t0) * 1e-6)
+    parts.append((rng.integers(t0, t1, n), rng.integers(0, W, n), rng.integers(0, H, n)))
+    hx, hy = rng.integers(0, W, hot), rng.integers(0, H, hot)
+    n = int(hot * 1000 * (t1 - t0) * 1e-6)
+    k = rng.integers(0, hot, n)
+    parts.append((rng.integers(t0, t1, n), hx[k], hy[k]))
+    if blob:  # player-like: tall, elongated, dense, slowly moving
+        n = int(1.5e6 * (t1 - t0) * 1e-6)
+        t = rng.integers(t0, t1, n)
+        x = np.rint(250 + rng.normal(0, 10, n) - 200 * (t - t0) * 1e-6)
+        y = np.rint(150 + rng.normal(0, 35, n))
+        ok = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+        parts.append((t[ok], x[ok], y[ok]))
+    return parts
+
+
+def _events(parts, seed=0):
+    t = np.concatenate([p[0] for p in parts]).astype(np.int64)
+    x = np.concatenate([p[1] for p in parts]).astype(np.int64)
+    y = np.concatenate([p[2] for p in parts]).astype(np.int64)
+    o = np.argsort(t, kind="stable")
+    return make_events(t[o], x[o], y[o], np.random.default_rng(seed).integers(0, 2, len(t)))
+
+
+def _truth(t_us, c0, v, t0=0):
+    dt = (np.asarray(t_us) - t0) * 1e-6
+    return c0[0] + v[0] * dt, c0[1] + v[1] * dt
+
+
+@pytest.mark.parametrize("ring", [False, True])
+@pytest.mark.parametrize("r", [8.0, 30.0])
+def test_fit_circle_on_disk_and_rim(ring, r):
+    rng = np.random.default_rng(1)
+    x, y = _disk(rng, int(15 * r * r), 100.3, 80.6, r, ring=ring)
+    if ring:  # a translating ball fires at its leading and trailing rims only
+        a = np.arctan2(y - 80.6, x - 100.3)
+        keep = np.abs(np.cos(a)) > 0.5
+        x, y = x[keep], y[keep]
+    fit = fit_circle(np.rint(x), np.rint(y), center0=(x.mean() + 2, y.mean() - 2))
+    assert fit is not None
+    assert abs(fit.cx - 100.3) < 0.4 and abs(fit.cy - 80.6) < 0.4
+    assert abs(fit.r - r) < 0.6
+    assert fit.score > 0.4
+
+
+def test_fit_circle_scores_an_elongated_blob_low():
+    rng = np.random.default_rng(2)
+    x = rng.normal(100, 8, 5000)
+    y = rng.normal(100, 30, 5000)
+    fit = fit_circle(np.rint(x), np.rint(y), center0=(100, 100))
+    assert fit is None or fit.score < 0.3
+
+
+def test_density_filter_drops_isolated_events():
+    rng = np.random.default_rng(3)
+    x, y = _disk(rng, 2000, 50, 50, 10)
+    xn, yn = np.array([150.0, 170.0, 190.0]), np.array([10.0, 30.0, 60.0])
+    keep = density_filter(np.r_[np.rint(x), xn], np.r_[np.rint(y), yn])
+    assert keep[:2000].mean() > 0.99 and not keep[2000:].any()
+
+
+def test_find_candidates_sizes_and_ranks_clusters():
+    rng = np.random.default_rng(4)
+    bx, by = _disk(rng, 3000, 100, 100, 12)
+    nx, ny = rng.integers(0, W, 300), rng.integers(0, H, 300)
+    x = np.r_[np.rint(bx), nx].astype(int)
+    y = np.r_[np.rint(by), ny].astype(int)
+    boxes = find_candidates(x, y, width=W, height=H, r_range=(5, 40))
+    assert len(boxes) >= 1
+    x0, y0, x1, y1 = boxes[0]
+    assert x0 <= 88 and x1 >= 112 and y0 <= 88 and y1 >= 112 and x1 - x0 < 45
+    assert find_candidates(x, y, width=W, height=H, r_range=(30, 40)) == []  # too small for that range
+
+
+def test_hot_pixel_map_flags_lonely_busy_pixels_only():
+    rng = np.random.default_rng(5)
+    hm = HotPixelMap(W, H)
+    for _ in range(5):
+        bx, by = _disk(rng, 4000, 100, 100, 15)
+        x = np.r_[np.rint(bx), np.full(20, 200)].astype(int)
+        y = np.r_[np.rint(by), np.full(20, 50)].astype(int)
+        hm.update(x, y)
+    keep = hm.keep(np.array([200, 100, 105]), np.array([50, 100, 95]))
+    assert keep.tolist() == [False, True, True]
+
+
+def test_kalman_recovers_constant_acceleration_and_smooths():
+    rng = np.random.default_rng(6)
+    t = np.arange(0, 40_000, 2000)
+    ts = t * 1e-6
+    x = 10 + 3000 * ts + 0.5 * 8000 * ts ** 2
+    y = 200 - 1000 * ts
+    kf = CircleKalman(0, (x[0], y[0], 20.0), velocity_px_s=(2500, -800), sigma_px=0.5)
+    for k in range(1, len(t)):
+        kf.update(int(t[k]), (x[k] + rng.normal(0, 0.3), y[k] + rng.normal(0, 0.3), 20.0), 0.3, 0.3)
+    assert kf.x[2] == pytest.approx(3000 + 8000 * ts[-1], abs=60)
+    tt, xs = kf.smoothed()
+    assert np.array_equal(tt, t)
+    assert np.max(np.abs(xs[:, 2] - (3000 + 8000 * ts))) < 80
+    assert np.max(np.abs(xs[:, 3] + 1000)) < 40
+
+
+def test_tracks_ball_among_noise_hot_pixels_and_blob():
+    rng = np.random.default_rng(7)
+    c0, v = (20.0, 120.0), (3000.0, -400.0)
+    ev = _events([_ball_events(rng, 0, 80_000, c0, v, 12.0)] + _clutter(rng, 0, 80_000))
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    assert len(tr) > 25 and len(tr.flight_ids()) == 1
+    ex, ey = _truth(tr.t_us, c0, v)
+    err = np.hypot(tr.cx - ex, tr.cy - ey)
+    assert np.median(err) < 0.5 and err.max() < 2.0
+    assert np.median(np.abs(tr.r - 12.0)) < 0.7
+    assert np.median(np.abs(tr.vx - v[0])) < 100 and np.median(np.abs(tr.vy - v[1])) < 100
+    # never on the blob
+    assert np.all(np.hypot(tr.cx - 250, tr.cy - 150) > 40)
+
+
+def test_empty_and_ball_free_inputs_give_empty_tracks():
+    assert len(track_ball(empty_events(), width=W, height=H)) == 0
+    rng = np.random.default_rng(8)
+    ev = _events(_clutter(rng, 0, 60_000))
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    assert isinstance(tr, Track) and len(tr) == 0
+
+
+def test_leave_and_reenter_gives_two_flights():
+    rng = np.random.default_rng(9)
+    a = _ball_events(rng, 0, 60_000, (200.0, 100.0), (3000.0, 0.0), 10.0)  # leaves at x=320 after 40 ms
+    b = _ball_events(rng, 90_000, 150_000, (330.0, 160.0), (-3000.0, -300.0), 10.0)  # comes back
+    ev = _events([a, b] + _clutter(rng, 0, 150_000, blob=False))
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    ids = tr.flight_ids()
+    assert len(ids) == 2
+    first, second = tr.select(tr.flight == ids[0]), tr.select(tr.flight == ids[1])
+    assert first.t_us.max() < 60_000 <= 90_000 < second.t_us.min()
+    assert np.median(first.vx) > 2500 and np.median(second.vx) < -2500
+
+
+def test_bounce_splits_the_flight():
+    rng = np.random.default_rng(10)
+    a = _ball_events(rng, 0, 40_000, (60.0, 60.0), (2500.0, 3000.0), 12.0)
+    b = _ball_events(rng, 40_000, 80_000, (160.0, 180.0), (2500.0, -3000.0), 12.0)
+    tr = track_ball(_events([a, b]), width=W, height=H, r_range=(5, 40))
+    ids = tr.flight_ids()
+    assert len(ids) == 2
+    before, after = tr.select(tr.flight == ids[0]), tr.select(tr.flight == ids[1])
+    assert np.median(before.vy) > 2500 and np.median(after.vy) < -2500
+
+
+def test_streaming_equals_batch():
+    rng = np.random.default_rng(11)
+    c0, v = (20.0, 120.0), (3000.0, -400.0)
+    ev = _events([_ball_events(rng, 0, 60_000, c0, v, 12.0)] + _clutter(rng, 0, 60_000))
+    batch = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    trk = BallTracker(W, H, r_range=(5, 40))
+    live = []
+    for chunk in np.array_split(ev, 37):
+        live.append(trk.update(chunk))
+    whole = trk.finish()
+    for c in ("t_us", "cx", "cy", "r", "vx", "flight"):
+        np.testing.assert_allclose(getattr(whole, c), getattr(batch, c))
+    n_live = sum(len(t) for t in live)
+    assert 0 < n_live <= len(whole)
+    assert np.all(np.diff(np.concatenate([t.t_us for t in live])) > 0)
+
+
+def test_bad_arguments_raise():
+    with pytest.raises(ValueError, match="r_range"):
+        BallTracker(W, H, r_range=(10, 5))
+    with pytest.raises(ValueError, match="block_us"):
+        BallTracker(W, H, slice_us=3000, block_us=20000)
+    with pytest.raises(TypeError, match="EVENT_DTYPE"):
+        BallTracker(W, H).update(np.zeros(3))
+
+
+def _frames(n, c0, v_px_frame, r, seed=12):
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    bg = cv2.GaussianBlur(rng.uniform(0, 255, (H, W)).astype(np.float32), (0, 0), 3)
+    bg = cv2.normalize(bg, None, 60, 160, cv2.NORM_MINMAX)
+    out, truth = [], []
+    for k in range(n):
+        img = bg.copy()
+        cx, cy = c0[0] + v_px_frame[0] * k, c0[1] + v_px_frame[1] * k
+        cv2.circle(img, (int(round(cx * 16)), int(round(cy * 16))), int(r * 16), 230, -1, cv2.LINE_AA, shift=4)
+        out.append(np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8))
+        truth.append((cx, cy))
+    return out, np.array(truth)
+
+
+def test_frame_detector_finds_drawn_ball_subpixel():
+    from detect.frame_detector import FrameDetector
+
+    frames, truth = _frames(8, (40.3, 100.6), (25.0, 5.0), 15)
+    fd = FrameDetector((8, 30))
+    for k, img in enumerate(frames[:-1]):
+        best = fd.detect(img)
+        assert best, f"no circle in frame {k}"
+        if k >= 4:  # background model warmed up: the ball is the top circle
+            assert np.hypot(best[0].cx - truth[k, 0], best[0].cy - truth[k, 1]) < 0.5
+            assert abs(best[0].r - 15.5) < 0.6
+    roi = fd.detect(frames[-1], roi=(truth[-1, 0] + 5, truth[-1, 1] - 5, 30))
+    assert len(roi) >= 1 and np.hypot(roi[0].cx - truth[-1, 0], roi[0].cy - truth[-1, 1]) < 0.5
+    assert fd.detect(frames[-1], roi=(250, 30, 20)) == []
+
+
+def test_frames_are_fused_into_the_track():
+    rng = np.random.default_rng(13)
+    c0, v = (40.3, 100.6), (2500.0, 500.0)  # 25 px and 5 px per 10 ms frame
+    frames, truth = _frames(8, c0, (25.0, 5.0), 15)
+    t_frames = np.arange(8) * 10_000 + 500
+    ev = _events([_ball_events(rng, 500, 70_500, c0, v, 15.5, rate=1e6)] + _clutter(rng, 0, 75_000, blob=False))
+    both = BallTracker(W, H, r_range=(5, 40))
+    for img, t in zip(frames, t_frames):
+        both.update_frame(img, int(t))
+    both.update(ev)
+    tr = both.finish()
+    assert np.isin(t_frames[4:], tr.t_us).sum() >= 2  # frame updates became rows
+    ex, ey = _truth(tr.t_us, c0, v, t0=500)
+    assert np.median(np.hypot(tr.cx - ex, tr.cy - ey)) < 0.5
