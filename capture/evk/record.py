@@ -8,6 +8,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from capture.raw import StreamDecoder, header_bytes
+
 from .errors import EvkConnectionError, EvkError
 from .stream import ByteQueue, Gap, TimeHighMonitor
 
@@ -79,15 +81,18 @@ class RecordStats:
 
 
 def _header(camera) -> bytes:
-    from capture.raw import header_bytes
-
     i = camera.info
     return header_bytes(
-        format=i.format, width=i.width, height=i.height,
+        format=i.format, width=i.width, height=i.height, endianness=_endianness(camera),
         serial_number=i.serial, firmware_version=i.firmware,
         integrator_name="Prophesee", plugin_name=f"courtside_evk_{i.sensor.lower().replace('.', '')}",
-        camera=f"{i.board} {i.sensor}",
+        camera=f"{i.board}_{i.sensor}",
     )
+
+
+def _endianness(camera) -> str:
+    """EVT2.1 from the EVK's IMX636 uses the legacy word order (section 4.3)."""
+    return "legacy" if camera.info.format == "EVT21" else "little"
 
 
 def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = None,
@@ -130,9 +135,8 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
     stats = RecordStats(raw_path=raw_path)
     decoder = None
     if on_batch is not None:
-        from capture.raw import StreamDecoder
-
-        decoder = StreamDecoder(camera.info.format)
+        i = camera.info
+        decoder = StreamDecoder(i.format, endianness=_endianness(camera), width=i.width, height=i.height)
     monitor = TimeHighMonitor() if camera.info.format == "EVT3" else None
     header = _header(camera)
     t0, c0 = time.monotonic(), time.process_time()
@@ -182,7 +186,8 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
             if monitor is not None:
                 stats.time_jumps = monitor.jumps
             if decoder is not None:
-                stats.decoder_stats = dict(getattr(decoder, "stats", {}) or {})
+                decoder.finish()
+                stats.decoder_stats = decoder.stats
     if reader.error is not None:
         stats.stop_reason = "error"
         stats.error = str(reader.error)
