@@ -1,0 +1,602 @@
+"""A file-backed fake Prophesee EVK: a real pyusb backend (``usb.backend.IBackend``).
+
+``capture.evk.open(backend=FakeEVK("rec.raw"))`` runs the unmodified driver against it, the
+way pyusb itself swaps libusb1 / libusb0 / openusb. The fake
+
+- enumerates as one EVK4 (``04B4:00F5``) or EVK3 (``04B4:00F4``) with the documented
+  configuration: interface 0 (class 0xFF, subclass 0x19) with bulk endpoints 0x82 IN,
+  0x02 OUT, 0x81 IN in that order, and manufacturer / product strings;
+- answers the Treuzell protocol from a register model and records every access in order in
+  :attr:`FakeEVK.log` (``("W", device, address, value)``, ``("R", device, address)``,
+  ``("D", microseconds)`` for driver delays, ``("prop", property, payload)`` for other
+  commands and ``("usb", action, ...)`` for USB-level calls);
+- streams the payload of a RAW file (after its ``%`` header) on the data endpoint once the
+  sensor's start sequence ran, in device packets of the given sizes, either as fast as
+  possible (``pace="max"``) or paced so that the stream's own timestamps (EVT3 / EVT2
+  TIME_HIGH words) drive wall-clock time (``pace="recorded"``);
+- injects faults: data-endpoint silence, stall or unplug after N bytes, permission denied,
+  interface busy, old firmware, early-quirk ``bcdDevice``.
+
+Driver hooks it offers (the driver uses them when present): ``sleep_us(us)`` records the
+sequence delays instead of sleeping (``realtime_delays=True`` sleeps too), and
+``end_of_stream()`` tells the recorder that the whole file has been served.
+"""
+
+from __future__ import annotations
+
+import array
+import errno
+import struct
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import usb.backend
+import usb.core
+
+from . import seq_imx636
+from .treuzell import (
+    FLAG_FAILURE,
+    FLAG_WRITE,
+    PROP_BUILD_DATE,
+    PROP_DEVICE_COMPATIBLE,
+    PROP_DEVICE_ENABLE,
+    PROP_DEVICE_NAME,
+    PROP_DEVICE_REG32,
+    PROP_DEVICE_STREAM,
+    PROP_DEVICES,
+    PROP_RELEASE_VERSION,
+    PROP_SERIAL,
+)
+
+EP_CTRL_IN, EP_CTRL_OUT, EP_DATA = 0x82, 0x02, 0x81
+LIBUSB_SPEED_SUPER = 4
+
+_SENSORS = {
+    "imx636": dict(
+        pid=0x00F5,
+        product="EVK4",
+        name="CCam5 Imx636 Event-Based Camera",
+        compatible=("psee,ccam5_imx636", "psee,ccam5_gen42"),
+        registers={
+            0x0014: seq_imx636.CHIP_ID,
+            0xF128: 0x0,
+            0x00400010: 0xCAFEBABE,
+            0x0004: 0xF0005042,
+            0x4058: 0x00FF0000,
+            0x6000: 0x00155400,
+            0x6008: 0x80,
+            0x600C: 0x80,
+            0x7000: 0xFFFF0001,
+            0x7004: 0xC1FF,
+            0x8000: 0x0001E085,
+            0x9008: 0x640,
+            # Factory-trimmed bias registers (ND's EVK4 values; idac_ctl in the low byte).
+            0x1004: 0x11A1E853,
+            0x100C: 0x11A1FF00,
+            0x1010: 0x11A16366,
+            0x1014: 0x11A1504D,
+            0x1018: 0x11A13749,
+            0x1020: 0x11A29614,
+        },
+    ),
+    "gen31": dict(
+        pid=0x00F4,
+        product="EVK3",
+        name="CCam5 Gen31 FPGA",
+        compatible=("psee,ccam5_fpga",),
+        registers={0x0800: 0x28, 0x0218: 0x90200C02, 0x0204: 0x0B},
+    ),
+    "gen41": dict(
+        pid=0x00F4,
+        product="EVK3",
+        name="CCam5 Gen41 Event-Based Camera",
+        compatible=("psee,ccam5_gen41",),
+        registers={0x0014: 0xA0301003, 0x7004: 0xC1FF, 0x6000: 0x00155400, 0x9008: 0x640,
+                   0x1004: 0x11A1004A, 0x100C: 0x11A10000, 0x1010: 0x11A10073,
+                   0x1014: 0x11A10050, 0x1018: 0x11A10034, 0x1020: 0x11A10044},
+    ),
+}
+
+
+def _running(sensor: str, regs: Mapping[int, int]) -> bool:
+    """Whether the sensor's start sequence has made it stream (and stop has not)."""
+    if sensor == "gen31":
+        return bool(regs.get(0x0000, 0) & (1 << 18))  # ATIS_CONTROL.TD_RSTN
+    return (
+        not regs.get(0x9028, 0) & 0x2  # ro_ctrl.output_disable
+        and bool(regs.get(0x9008, 0) & 0x1)  # time base enabled
+        and bool(regs.get(0x0004, 0) & (1 << 10))  # px_td_rstn: pixels released
+    )
+
+
+def _usb_error(code: int, err: int, text: str) -> usb.core.USBError:
+    return usb.core.USBError(text, code, err)
+
+
+def _split_raw(data: bytes) -> tuple[bytes, str]:
+    """(payload, format) of a RAW file's bytes: skip the ``%`` header lines."""
+    pos = 0
+    fmt = "EVT3"
+    while pos < len(data) and data[pos:pos + 1] == b"%":
+        end = data.find(b"\n", pos)
+        end = len(data) if end < 0 else end + 1
+        line = data[pos:end].decode("ascii", "replace").lower()
+        if "evt 2.0" in line or "format evt2" in line and "evt21" not in line:
+            fmt = "EVT2"
+        elif "evt 2.1" in line or "format evt21" in line:
+            fmt = "EVT21"
+        pos = end
+        if line.strip() == "% end":
+            break
+    return data[pos:], fmt
+
+
+def stream_times_us(payload: bytes, fmt: str, ends: np.ndarray) -> np.ndarray:
+    """Stream time (µs, unwrapped TIME_HIGH precision) reached at each packet end offset.
+
+    Parameters
+    ----------
+    payload : bytes
+        Event words.
+    fmt : str
+        ``"EVT3"`` (16-bit words) or ``"EVT2"``/``"EVT21"`` (32-bit words).
+    ends : ndarray of int, shape (P,)
+        Byte offsets of packet ends.
+    """
+    if fmt == "EVT3":
+        w = np.frombuffer(payload[: len(payload) // 2 * 2], dtype="<u2")
+        pos = np.flatnonzero((w >> 12) == 0x8)
+        th = (w[pos] & 0xFFF).astype(np.int64)
+        step = np.diff(th, prepend=th[:1])
+        loops = np.cumsum(step <= -2048)
+        t = (th + loops * 4096) << 12
+        word_bytes = 2
+    else:
+        # EVT2: one u32 per word; EVT2.1 legacy: u64 words whose low u32 holds the type.
+        word_bytes = 4 if fmt == "EVT2" else 8
+        w = np.frombuffer(payload[: len(payload) // word_bytes * word_bytes], dtype="<u4")
+        w = w if fmt == "EVT2" else w[0::2]
+        pos = np.flatnonzero((w >> 28) == 0x8)
+        t = (w[pos] & 0x0FFFFFFF).astype(np.int64) << 6
+    if t.size == 0:
+        return np.zeros(len(ends), dtype=np.int64)
+    k = np.searchsorted(pos * word_bytes, ends, side="left") - 1
+    return t[np.clip(k, 0, None)] - t[0]
+
+
+class _Handle:
+    pass
+
+
+class FakeEVK(usb.backend.IBackend):
+    """Emulated EVK as a pyusb backend.
+
+    Parameters
+    ----------
+    raw_path : str or Path or None
+        RAW file whose payload is streamed; ``None`` streams nothing (bring-up only).
+    sensor : {"imx636", "gen31", "gen41"}
+        Emulated sensor: IMX636 on an EVK4 (default), Gen3.1 VGA or Gen4.1 on an EVK3.
+    pace : {"max", "recorded"}
+        ``"max"`` serves data as fast as it is read; ``"recorded"`` releases each packet
+        when wall-clock time since streaming began reaches its stream time / ``speed``.
+    speed : float
+        Playback speed factor for ``pace="recorded"``.
+    packet_bytes : int or sequence of int
+        Device-side packet (transfer) sizes, cycled. A packet whose size is not a multiple
+        of ``max_packet_size`` ends in a short USB packet, which ends a host read.
+    max_packet_size : int
+        ``wMaxPacketSize`` of the bulk endpoints (1024 SuperSpeed, 512 High Speed).
+    serial : int
+        Serial number (u64) answered to ``TZ_PROP_SERIAL``.
+    firmware_version : int
+        ``major << 16 | minor << 8 | patch``; below ``0x030800`` the driver must refuse.
+    bcd_device : int
+        ``bcdDevice``; below ``0x0307`` the driver must skip SET_INTERFACE.
+    registers : mapping, optional
+        Register values overriding the sensor's defaults (e.g. a wrong chip id).
+    extra_devices : sequence of (compatible, name)
+        Additional Treuzell devices after device 0 (e.g. ``("treuzell,streamer", "dma")``).
+    pause_after_bytes : (int, float), optional
+        After serving that many bytes, the data endpoint is silent (timeouts) for that
+        many seconds.
+    stall_after_bytes, disconnect_after_bytes : int, optional
+        After serving that many bytes the data endpoint stalls (EPIPE) / the device is
+        unplugged (ENODEV on every call).
+    permission_denied, busy : bool
+        ``open_device`` fails with EACCES / ``claim_interface`` fails with EBUSY.
+    kernel_driver_active : bool
+        Report a kernel driver bound to interface 0 (the driver must detach it).
+    realtime_delays : bool
+        Really sleep the driver's sequence delays (default: only record them).
+    """
+
+    def __init__(
+        self,
+        raw_path=None,
+        *,
+        sensor: str = "imx636",
+        pace: str = "max",
+        speed: float = 1.0,
+        packet_bytes: int | Sequence[int] = 131072,
+        max_packet_size: int = 1024,
+        serial: int = 0x00000000A1B2C3D4,
+        firmware_version: int = 0x030900,
+        build_date: int = 1_700_000_000,
+        bcd_device: int = 0x0310,
+        registers: Mapping[int, int] | None = None,
+        extra_devices: Sequence[tuple[str, str]] = (),
+        pause_after_bytes: tuple[int, float] | None = None,
+        stall_after_bytes: int | None = None,
+        disconnect_after_bytes: int | None = None,
+        permission_denied: bool = False,
+        busy: bool = False,
+        kernel_driver_active: bool = False,
+        realtime_delays: bool = False,
+    ):
+        if sensor not in _SENSORS:
+            raise ValueError(f"sensor must be one of {sorted(_SENSORS)}, got {sensor!r}")
+        if pace not in ("max", "recorded"):
+            raise ValueError(f"pace must be 'max' or 'recorded', got {pace!r}")
+        if speed <= 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.sensor = sensor
+        spec = _SENSORS[sensor]
+        self.pace = pace
+        self.speed = float(speed)
+        self.max_packet_size = int(max_packet_size)
+        self.serial = serial
+        self.firmware_version = firmware_version
+        self.build_date = build_date
+        self.bcd_device = bcd_device
+        self.permission_denied = permission_denied
+        self.busy = busy
+        self.realtime_delays = realtime_delays
+        self._kernel_driver = kernel_driver_active
+        self.devices = [(spec["compatible"], spec["name"])] + [((c,), n) for c, n in extra_devices]
+        self.registers: dict[int, int] = dict(spec["registers"])
+        self.registers.update(registers or {})
+        self.reset_registers = dict(self.registers)
+        self.log: list[tuple] = []
+        self.device_flags: dict[tuple[int, int], int] = {}
+
+        self._desc = SimpleNamespace(
+            bLength=18, bDescriptorType=1, bcdUSB=0x0320, bDeviceClass=0, bDeviceSubClass=0,
+            bDeviceProtocol=0, bMaxPacketSize0=9, idVendor=0x04B4, idProduct=spec["pid"],
+            bcdDevice=bcd_device, iManufacturer=1, iProduct=2, iSerialNumber=0,
+            bNumConfigurations=1, address=7, bus=2, port_number=1, port_numbers=(1,),
+            speed=LIBUSB_SPEED_SUPER,
+        )
+        self._strings = {1: "Prophesee", 2: spec["product"]}
+        self._answers: list[bytes] = []
+        self._gone = False
+        self._stalled = False
+        self._open = False
+        self._claimed = False
+
+        if raw_path is not None:
+            payload, self.format = _split_raw(Path(raw_path).read_bytes())
+        else:
+            payload, self.format = b"", "EVT3"
+        self.payload = payload
+        sizes = np.atleast_1d(np.asarray(packet_bytes, dtype=np.int64))
+        if sizes.size == 0 or (sizes <= 0).any():
+            raise ValueError("packet_bytes must be positive")
+        reps = -(-len(payload) // int(sizes.sum())) if payload else 0
+        ends = np.cumsum(np.tile(sizes, max(reps, 1)))
+        ends = ends[: np.searchsorted(ends, len(payload)) + 1]
+        ends[-1] = len(payload)
+        self._ends = ends if payload else np.zeros(0, dtype=np.int64)
+        starts = np.concatenate([[0], self._ends[:-1]]) if payload else self._ends
+        self._short = ((self._ends - starts) % self.max_packet_size) != 0
+        self._times_s = (
+            stream_times_us(payload, self.format, self._ends) / 1e6 / self.speed
+            if payload else np.zeros(0)
+        )
+        self._pos = 0  # bytes served
+        self._pkt = 0  # index of the packet containing _pos
+        self._t0_wall = None
+        self._pause = pause_after_bytes
+        self._pause_until = None
+        self._stall_at = stall_after_bytes
+        self._gone_at = disconnect_after_bytes
+        self._lock = threading.Lock()
+
+    # ---- test helpers -----------------------------------------------------------------
+    @property
+    def bytes_served(self) -> int:
+        """Payload bytes delivered on the data endpoint so far."""
+        return self._pos
+
+    def register_log(self) -> list[tuple]:
+        """The ``R``/``W``/``D`` entries of :attr:`log`, in order."""
+        return [e for e in self.log if e[0] in ("R", "W", "D")]
+
+    def unplug(self) -> None:
+        """Emulate pulling the cable now."""
+        self._gone = True
+
+    # ---- driver hooks -----------------------------------------------------------------
+    def sleep_us(self, us: int) -> None:
+        """Sequence delay: recorded (and slept when ``realtime_delays``)."""
+        self.log.append(("D", int(us)))
+        if self.realtime_delays:
+            time.sleep(us / 1e6)
+
+    def end_of_stream(self) -> bool:
+        """True once the whole payload has been served (nothing more will come)."""
+        return self._pos >= len(self.payload)
+
+    # ---- enumeration and descriptors ----------------------------------------------------
+    def _check_present(self):
+        if self._gone:
+            raise _usb_error(-4, errno.ENODEV, "No such device (it may have been disconnected)")
+
+    def enumerate_devices(self):
+        if not self._gone:
+            yield self
+
+    def get_parent(self, dev):
+        return None
+
+    def get_device_descriptor(self, dev):
+        return self._desc
+
+    def get_configuration_descriptor(self, dev, config):
+        if config != 0:
+            raise IndexError(config)
+        return SimpleNamespace(
+            bLength=9, bDescriptorType=2, wTotalLength=9 + 9 + 3 * 7, bNumInterfaces=1,
+            bConfigurationValue=1, iConfiguration=0, bmAttributes=0x80, bMaxPower=112,
+            extra_descriptors=[],
+        )
+
+    def get_interface_descriptor(self, dev, intf, alt, config):
+        if config != 0 or intf != 0 or alt != 0:
+            raise IndexError((intf, alt, config))
+        return SimpleNamespace(
+            bLength=9, bDescriptorType=4, bInterfaceNumber=0, bAlternateSetting=0,
+            bNumEndpoints=3, bInterfaceClass=0xFF, bInterfaceSubClass=0x19,
+            bInterfaceProtocol=0, iInterface=0, extra_descriptors=[],
+        )
+
+    def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
+        addresses = (EP_CTRL_IN, EP_CTRL_OUT, EP_DATA)
+        if config != 0 or intf != 0 or alt != 0 or not 0 <= ep < 3:
+            raise IndexError((ep, intf, alt, config))
+        return SimpleNamespace(
+            bLength=7, bDescriptorType=5, bEndpointAddress=addresses[ep], bmAttributes=0x02,
+            wMaxPacketSize=self.max_packet_size, bInterval=0, bRefresh=0, bSynchAddress=0,
+            extra_descriptors=[],
+        )
+
+    # ---- device handle ------------------------------------------------------------------
+    def open_device(self, dev):
+        self._check_present()
+        if self.permission_denied:
+            raise _usb_error(-3, errno.EACCES, "Access denied (insufficient permissions)")
+        self.log.append(("usb", "open"))
+        self._open = True
+        return _Handle()
+
+    def close_device(self, dev_handle):
+        self.log.append(("usb", "close"))
+        self._open = False
+
+    def get_configuration(self, dev_handle):
+        self._check_present()
+        return 1
+
+    def set_configuration(self, dev_handle, config_value):
+        self._check_present()
+        self.log.append(("usb", "set_configuration", config_value))
+
+    def set_interface_altsetting(self, dev_handle, intf, altsetting):
+        self._check_present()
+        self.log.append(("usb", "set_interface", intf, altsetting))
+
+    def claim_interface(self, dev_handle, intf):
+        self._check_present()
+        if self.busy:
+            raise _usb_error(-6, errno.EBUSY, "Resource busy")
+        self.log.append(("usb", "claim", intf))
+        self._claimed = True
+
+    def release_interface(self, dev_handle, intf):
+        self.log.append(("usb", "release", intf))
+        self._claimed = False
+
+    def is_kernel_driver_active(self, dev_handle, intf):
+        self._check_present()
+        return self._kernel_driver
+
+    def detach_kernel_driver(self, dev_handle, intf):
+        self._check_present()
+        self.log.append(("usb", "detach_kernel_driver", intf))
+        self._kernel_driver = False
+
+    def clear_halt(self, dev_handle, ep):
+        self._check_present()
+        self.log.append(("usb", "clear_halt", ep))
+        if ep == EP_DATA:
+            self._stalled = False
+
+    def reset_device(self, dev_handle):
+        self._check_present()
+        self.log.append(("usb", "reset"))
+
+    def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):
+        self._check_present()
+        if bmRequestType == 0x80 and bRequest == 6 and wValue >> 8 == 3:  # GET_DESCRIPTOR string
+            index = wValue & 0xFF
+            if index == 0:
+                desc = bytes([4, 3, 0x09, 0x04])
+            elif index in self._strings:
+                text = self._strings[index].encode("utf-16-le")
+                desc = bytes([2 + len(text), 3]) + text
+            else:
+                raise _usb_error(-9, errno.EPIPE, "Pipe error")
+        elif bmRequestType == 0xC0 and bRequest == 0x72:  # vendor: system id (ND)
+            desc = bytes([0x31 if self.sensor == "imx636" else 0x28 if self.sensor == "gen31" else 0x30, 0])
+        else:
+            raise _usb_error(-9, errno.EPIPE, "Pipe error")
+        n = min(len(desc), len(data))
+        data[:n] = array.array("B", desc[:n])
+        return n
+
+    # ---- bulk transfers -----------------------------------------------------------------
+    def bulk_write(self, dev_handle, ep, intf, data, timeout):
+        self._check_present()
+        if ep != EP_CTRL_OUT:
+            raise _usb_error(-9, errno.EPIPE, "Pipe error")
+        frame = bytes(data)
+        self._answers.append(self._answer(frame))
+        return len(frame)
+
+    def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+        self._check_present()
+        if ep == EP_CTRL_IN:
+            if not self._answers:
+                time.sleep(min(timeout, 50) / 1000)
+                raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+            answer = self._answers.pop(0)
+            if len(answer) > len(buff):
+                raise _usb_error(-8, errno.EOVERFLOW, "Overflow")
+            memoryview(buff).cast("B")[: len(answer)] = answer
+            return len(answer)
+        if ep == EP_DATA:
+            return self._data_read(buff, timeout)
+        raise _usb_error(-9, errno.EPIPE, "Pipe error")
+
+    # ---- Treuzell -----------------------------------------------------------------------
+    def _answer(self, frame: bytes) -> bytes:
+        if len(frame) < 8:
+            return struct.pack("<II", FLAG_FAILURE, 0)
+        prop, size = struct.unpack_from("<II", frame)
+        payload = frame[8:8 + size]
+        base = prop & ~FLAG_WRITE
+        write = bool(prop & FLAG_WRITE)
+
+        def ok(body: bytes) -> bytes:
+            return struct.pack("<II", prop, len(body)) + body
+
+        def fail(body: bytes = b"") -> bytes:
+            return struct.pack("<II", prop | FLAG_FAILURE, len(body)) + body
+
+        n_words = len(payload) // 4
+        w = struct.unpack_from(f"<{n_words}I", payload) if n_words else ()
+        if base == PROP_DEVICE_REG32 and n_words >= 3:
+            device, address = w[0], w[1]
+            if device >= len(self.devices):
+                return fail(struct.pack("<III", device, address, errno.ENODEV))
+            if write:
+                with self._lock:
+                    for i, value in enumerate(w[2:]):
+                        self.registers[address + 4 * i] = value
+                        self.log.append(("W", device, address + 4 * i, value))
+                return ok(struct.pack("<II", device, address))
+            count = w[2]
+            values = []
+            with self._lock:
+                for i in range(count):
+                    values.append(self.registers.get(address + 4 * i, 0))
+                    self.log.append(("R", device, address + 4 * i))
+            return ok(struct.pack(f"<II{count}I", device, address, *values))
+        self.log.append(("prop", prop, payload))
+        if write:
+            if base in (PROP_DEVICE_ENABLE, PROP_DEVICE_STREAM) and n_words >= 2:
+                self.device_flags[(base, w[0])] = w[1]
+                return ok(payload[:4])
+            return struct.pack("<II", FLAG_FAILURE, 0)
+        if base == PROP_SERIAL:
+            return ok(struct.pack("<Q", self.serial))
+        if base == PROP_RELEASE_VERSION:
+            return ok(struct.pack("<I", self.firmware_version))
+        if base == PROP_BUILD_DATE:
+            return ok(struct.pack("<Q", self.build_date))
+        if base == PROP_DEVICES:
+            return ok(struct.pack("<I", len(self.devices)))
+        if base in (PROP_DEVICE_NAME, PROP_DEVICE_COMPATIBLE) and n_words >= 1:
+            if w[0] >= len(self.devices):
+                return fail(payload[:4])
+            compatible, name = self.devices[w[0]]
+            strings = (name,) if base == PROP_DEVICE_NAME else compatible
+            return ok(payload[:4] + b"".join(s.encode("ascii") + b"\0" for s in strings))
+        return struct.pack("<II", FLAG_FAILURE, 0)
+
+    # ---- data endpoint ------------------------------------------------------------------
+    def _limit(self) -> int:
+        """Payload offset the next read may not cross (faults), or the end."""
+        limit = len(self.payload)
+        for at in (self._stall_at, self._gone_at, self._pause[0] if self._pause else None):
+            if at is not None and self._pos < at:
+                limit = min(limit, at)
+        return limit
+
+    def _available_end(self, now: float) -> int:
+        """End offset of the data the device has produced by ``now``."""
+        if self.pace == "max":
+            return len(self.payload)
+        k = int(np.searchsorted(self._times_s, now - self._t0_wall, side="right"))
+        return int(self._ends[k - 1]) if k > 0 else 0
+
+    def _data_read(self, buff, timeout_ms: int) -> int:
+        deadline = time.monotonic() + (timeout_ms / 1000 if timeout_ms else 3600.0)
+        out = memoryview(buff).cast("B")
+        n_max = len(out)
+        got = 0
+        while True:
+            self._check_present()
+            if self._stalled:
+                raise _usb_error(-9, errno.EPIPE, "Pipe error")
+            now = time.monotonic()
+            if self._gone_at is not None and self._pos >= self._gone_at:
+                self._gone = True
+                if got:
+                    return got
+                continue
+            if self._stall_at is not None and self._pos >= self._stall_at:
+                self._stall_at = None
+                self._stalled = True
+                if got:
+                    return got
+                continue
+            if self._pause and self._pos >= self._pause[0]:
+                self._pause_until = now + self._pause[1]
+                self._pause = None
+            running = _running(self.sensor, self.registers)
+            if running and self._t0_wall is None:
+                self._t0_wall = now - (self._times_s[self._pkt] if self._pkt < len(self._times_s) else 0.0)
+            if not running:
+                self._t0_wall = None
+            avail = 0
+            if running and (self._pause_until is None or now >= self._pause_until):
+                self._pause_until = None
+                avail = min(self._available_end(now), self._limit())
+            if avail > self._pos:
+                pkt_end = int(self._ends[self._pkt])
+                end = min(avail, pkt_end, self._pos + (n_max - got))
+                n = end - self._pos
+                out[got:got + n] = self.payload[self._pos:end]
+                got += n
+                self._pos = end
+                if self._pos == pkt_end:
+                    short = bool(self._short[self._pkt])
+                    self._pkt += 1
+                    if short:
+                        return got  # a short USB packet ends the transfer
+                if got == n_max:
+                    return got
+                continue
+            if now >= deadline:
+                if got:
+                    return got  # libusb: TIMED_OUT with data; pyusb returns the count
+                raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+            wait = deadline - now
+            if running and self.pace == "recorded" and self._pkt < len(self._times_s):
+                wait = min(wait, max(self._times_s[self._pkt] - (now - self._t0_wall), 0.0))
+            time.sleep(min(wait, 0.005) if wait > 0 else 0)

@@ -1,0 +1,163 @@
+"""EVK3 Gen3.1 VGA (``psee,ccam5_fpga``) register sequences, as data.
+
+Transcribed from ``evk-usb.md`` Appendix D (``gen31_evk3_*``) and section 3.13 (rows G1-G11).
+All addresses are FPGA registers of the main Treuzell device. Op format as in
+:mod:`capture.evk.seq_imx636`. Run order: open = STOP, DESTROY, INIT, POST_INIT;
+start = START (includes a 250 ms wait); stop = STOP; close = DESTROY.
+"""
+
+INIT = (
+    ("R", 0x00000800),  # 1 SYSTEM_CONFIG/ID (system id); HAL discards (expect 0x00000028, mask 0x000000FF)
+    ("R", 0x00000800),  # 2 SYSTEM_CONFIG/ID (system id); HAL discards (expect 0x00000028, mask 0x000000FF)
+    ("R", 0x00000800),  # 3 SYSTEM_CONFIG/ID (system id); HAL discards (expect 0x00000028, mask 0x000000FF)
+    ("W", 0x00000000, 0x00000000),  # 4 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x0000000C, 0x00000000),  # 5 SYSTEM_CONTROL/CCAM2_TRIGGER (SOFT_RESET)
+    ("W", 0x0000000C, 0x00000001),  # 6 SYSTEM_CONTROL/CCAM2_TRIGGER (SOFT_RESET)
+    ("W", 0x00000000, 0x00000000),  # 7 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00000000),  # 8 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00000008),  # 9 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x0000000A),  # 10 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x0000000E),  # 11 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00000006),  # 12 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00001006),  # 13 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000768, 0x08010000),  # 14 GEN31_IODELAY/IODELAY_SET_VALUE_0
+    ("W", 0x0000076C, 0x00000000),  # 15 GEN31_IODELAY/IODELAY_SET_VALUE_1
+    ("W", 0x00000770, 0x00000000),  # 16 GEN31_IODELAY/IODELAY_SET_VALUE_2
+    ("W", 0x00000774, 0x00000000),  # 17 GEN31_IODELAY/IODELAY_SET_VALUE_3
+    ("W", 0x00000778, 0x00000000),  # 18 GEN31_IODELAY/IODELAY_SET_VALUE_4
+    ("W", 0x0000077C, 0x00000000),  # 19 GEN31_IODELAY/IODELAY_SET_VALUE_5
+    ("W", 0x00000798, 0x003FFFFF),  # 20 GEN31_IODELAY/SAMPLE_CLK_EDGE
+    ("W", 0x00000764, 0x00FFFFFF),  # 21 SENSOR_IF/GEN31_IODELAY/IODELAY_LOAD
+    ("W", 0x00000008, 0x00000100),  # 22 SYSTEM_CONTROL/CCAM2_CONTROL
+    ("W", 0x00001500, 0x0000000D),  # 23 MIPI_TX/CONTROL
+    ("W", 0x00000000, 0x00001106),  # 24 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00001106),  # 25 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x0000074C, 0x00000002),  # 26 SENSOR_IF/GEN31_IF/CONTROL
+    ("W", 0x00001508, 0x00000FA0),  # 27 MIPI_TX/FRAME_PERIOD
+    ("W", 0x00001520, 0x00003E80),  # 28 MIPI_TX/INTER_FRAME_TIME
+    ("W", 0x0000150C, 0x000001F8),  # 29 MIPI_TX/PACKET_TIMEOUT
+    ("W", 0x00001510, 0x00002000),  # 30 MIPI_TX/PACKET_SIZE
+    ("W", 0x00000238, 0x00000001),  # 31 SENSOR_IF/GEN31/clk_out_ctrl
+    ("W", 0x00000204, 0x0000000B),  # 32 SENSOR_IF/GEN31/roi_ctrl
+    ("W", 0x0000021C, 0x00000100),  # 33 SENSOR_IF/GEN31/spare_ctrl
+    ("W", 0x00000200, 0x00000010),  # 34 SENSOR_IF/GEN31/global_ctrl
+    ("W", 0x00000200, 0x00000018),  # 35 SENSOR_IF/GEN31/global_ctrl
+    ("W", 0x00000200, 0x0000001A),  # 36 SENSOR_IF/GEN31/global_ctrl
+    ("R", 0x00000218),  # 37 SENSOR_IF/GEN31/chip_id; HAL discards (expect 0x90200C02, mask 0xFFFFFFFF)
+    ("W", 0x00000240, 0x00140501),  # 38 SENSOR_IF/GEN31/rob_ctrl
+    ("W", 0x00000208, 0x40020BFF),  # 39 SENSOR_IF/GEN31/readout_ctrl
+    ("W", 0x00000208, 0x40020BFF),  # 40 SENSOR_IF/GEN31/readout_ctrl
+    ("W", 0x00000208, 0x400203FF),  # 41 SENSOR_IF/GEN31/readout_ctrl
+    ("W", 0x00000244, 0x400203FF),  # 42 SENSOR_IF/GEN31/roe_ctrl
+    ("W", 0x00000244, 0x400203FF),  # 43 SENSOR_IF/GEN31/roe_ctrl
+    ("W", 0x00000244, 0x400203FF),  # 44 SENSOR_IF/GEN31/roe_ctrl
+    ("W", 0x0000021C, 0x10000100),  # 45 SENSOR_IF/GEN31/spare_ctrl
+    ("W", 0x0000021C, 0x10000101),  # 46 SENSOR_IF/GEN31/spare_ctrl
+    ("W", 0x00000300, 0x5903E1B0),  # 47 SENSOR_IF/GEN31/bgen_00
+    ("W", 0x00000304, 0x5903E1B0),  # 48 SENSOR_IF/GEN31/bgen_01
+    ("W", 0x00000308, 0x5900629B),  # 49 SENSOR_IF/GEN31/bgen_02
+    ("W", 0x0000030C, 0x59001BA9),  # 50 SENSOR_IF/GEN31/bgen_03
+    ("W", 0x00000310, 0x59014D8C),  # 51 SENSOR_IF/GEN31/bgen_04
+    ("W", 0x00000314, 0x790DB770),  # 52 SENSOR_IF/GEN31/bgen_05
+    ("W", 0x00000318, 0x59014D8C),  # 53 SENSOR_IF/GEN31/bgen_06
+    ("W", 0x0000031C, 0x59014DBE),  # 54 SENSOR_IF/GEN31/bgen_07
+    ("W", 0x00000320, 0x79002C3E),  # 55 SENSOR_IF/GEN31/bgen_08
+    ("W", 0x00000324, 0x79005436),  # 56 SENSOR_IF/GEN31/bgen_09
+    ("W", 0x00000328, 0x59166CB7),  # 57 SENSOR_IF/GEN31/bgen_10
+    ("W", 0x0000032C, 0x79000000),  # 58 SENSOR_IF/GEN31/bgen_11
+    ("W", 0x00000330, 0x590000FF),  # 59 SENSOR_IF/GEN31/bgen_12
+    ("W", 0x00000334, 0x7100002A),  # 60 SENSOR_IF/GEN31/bgen_13
+    ("W", 0x00000338, 0x7100002F),  # 61 SENSOR_IF/GEN31/bgen_14
+    ("W", 0x0000033C, 0x71000021),  # 62 SENSOR_IF/GEN31/bgen_15
+    ("W", 0x00000340, 0x590004FF),  # 63 SENSOR_IF/GEN31/bgen_16
+    ("W", 0x00000344, 0x590000FF),  # 64 SENSOR_IF/GEN31/bgen_17
+    ("W", 0x00000348, 0x59014DFF),  # 65 SENSOR_IF/GEN31/bgen_18
+    ("W", 0x0000034C, 0x7900571E),  # 66 SENSOR_IF/GEN31/bgen_19 (bias_diff_off)
+    ("W", 0x00000350, 0x79125C35),  # 67 SENSOR_IF/GEN31/bgen_20 (bias_diff_on)
+    ("W", 0x00000354, 0x7902CE29),  # 68 SENSOR_IF/GEN31/bgen_21 (bias_diff)
+    ("W", 0x00000358, 0x71003DD6),  # 69 SENSOR_IF/GEN31/bgen_22 (bias_fo)
+    ("W", 0x0000035C, 0x51034FB1),  # 70 SENSOR_IF/GEN31/bgen_23 (bias_pr)
+    ("W", 0x00000360, 0x51004FD4),  # 71 SENSOR_IF/GEN31/bgen_24 (bias_refr)
+    ("W", 0x00000364, 0x510006D4),  # 72 SENSOR_IF/GEN31/bgen_25 (bias_hpf)
+    ("W", 0x00000368, 0x71000054),  # 73 SENSOR_IF/GEN31/bgen_26
+    ("W", 0x00000238, 0x00000001),  # 74 SENSOR_IF/GEN31/clk_out_ctrl
+    ("W", 0x00000220, 0x00000001),  # 75 SENSOR_IF/GEN31/oor_ctrl
+    ("W", 0x00000204, 0x00000003),  # 76 SENSOR_IF/GEN31/roi_ctrl
+    ("W", 0x00000204, 0x00000003),  # 77 SENSOR_IF/GEN31/roi_ctrl
+    ("W", 0x00000450, 0x00000000),  # 78 SENSOR_IF/GEN31/td_roi_x20
+    ("W", 0x0000053C, 0x00000000),  # 79 SENSOR_IF/GEN31/td_roi_y15
+    ("W", 0x00000204, 0x00000023),  # 80 SENSOR_IF/GEN31/roi_ctrl
+    ("W", 0x0000024C, 0x0002BFFF),  # 81 SENSOR_IF/GEN31/nfl_thresh
+    ("W", 0x00000248, 0x000000C9),  # 82 SENSOR_IF/GEN31/nfl_ctrl
+)
+
+START = (
+    ("RMW", 0x00000000, 0x00001107, 0x00000001),  # 1 SYSTEM_CONTROL/ATIS_CONTROL
+    ("RMW", 0x00000000, 0x00041107, 0x00040000),  # 2 SYSTEM_CONTROL/ATIS_CONTROL
+    ("RMW", 0x00000000, 0x000C1107, 0x00080000),  # 3 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000008, 0x00000300),  # 4 SYSTEM_CONTROL/CCAM2_CONTROL
+    ("W", 0x00000238, 0x00000001),  # 5 SENSOR_IF/GEN31/clk_out_ctrl
+    ("W", 0x00000204, 0x0000002B),  # 6 SENSOR_IF/GEN31/roi_ctrl
+    ("D", 250000),  # 7
+    ("W", 0x00000248, 0x000000C8),  # 8 SENSOR_IF/GEN31/nfl_ctrl
+)
+
+STOP = (
+    ("W", 0x00000204, 0x00000023),  # 1 SENSOR_IF/GEN31/roi_ctrl
+    ("W", 0x00000238, 0x00000000),  # 2 SENSOR_IF/GEN31/clk_out_ctrl
+    ("W", 0x00000008, 0x00000100),  # 3 SYSTEM_CONTROL/CCAM2_CONTROL
+    ("RMW", 0x00000000, 0x00081107, 0x00040000),  # 4 SYSTEM_CONTROL/ATIS_CONTROL
+    ("RMW", 0x00000000, 0x00081106, 0x00000001),  # 5 SYSTEM_CONTROL/ATIS_CONTROL
+)
+
+DESTROY = (
+    ("W", 0x00000238, 0x00000000),  # 1 SENSOR_IF/GEN31/clk_out_ctrl
+    ("W", 0x0000074C, 0x00000000),  # 2 SENSOR_IF/GEN31_IF/CONTROL
+    ("W", 0x00000000, 0x0008110E),  # 3 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x0008110C),  # 4 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x00000000, 0x00081108),  # 5 SYSTEM_CONTROL/ATIS_CONTROL
+    ("W", 0x0000000C, 0x00000000),  # 6 SYSTEM_CONTROL/CCAM2_TRIGGER (SOFT_RESET)
+    ("W", 0x0000000C, 0x00000001),  # 7 SYSTEM_CONTROL/CCAM2_TRIGGER (SOFT_RESET)
+)
+
+ROI_X_ADDRESSES = tuple(0x0400 + 4 * k for k in range(20))  # 640 columns, 1 = on
+ROI_Y_ADDRESSES = tuple(0x0500 + 4 * k for k in range(15))  # 480 rows, 1 = on
+
+ROI_APPLY = (
+    ("RMW", 0x0204, 1 << 1, 1 << 1),  # roi_td_en <- 1
+    ("RMW", 0x0204, 1 << 5, 1 << 5),  # roi_td_shadow_trigger <- 1
+    ("RMW", 0x0204, 0, 1 << 5),  # roi_td_shadow_trigger <- 0
+)
+
+TRIGGER_IN_DISABLE = (("RMW", 0x01A0, 0, 1 << 0),)  # channel Main (id 0)
+TRIGGER_IN_ENABLE = (("RMW", 0x01A0, 1 << 0, 1 << 0),)
+
+# Section 3.13, rows G1-G11 (after INIT).
+POST_INIT = (
+    ("RMW", 0x0214, 1 << 31, 1 << 31),  # G1 lifo_en <- 1
+    *TRIGGER_IN_DISABLE,  # G2 trigger Main disabled
+    ("RMW", 0x01A0, 0, 1 << 6),  # G3 trigger Loopback disabled
+    ("W", 0x01A4, 0),  # G4 trigger output disabled
+    *(("W", a, 0xFFFFFFFF) for a in ROI_X_ADDRESSES),  # G5 all columns on
+    *(("W", a, 0xFFFFFFFF) for a in ROI_Y_ADDRESSES),  # G6 all rows on
+    *ROI_APPLY,  # G7-G9
+    ("RMW", 0x0000, 1 << 12, 1 << 12),  # G10 MASTER_MODE <- 1 (standalone)
+    ("RMW", 0x0000, 0, 1 << 14),  # G11 USE_EXT_START <- 0
+)
+
+SYSTEM_ID_ADDRESS = 0x0800  # SYSTEM_CONFIG/ID, field VALUE [7:0]
+SYSTEM_ID = 0x28
+
+# Biases: absolute millivolts. Register, (recommended min, max) mV.
+BIAS_REGISTERS = {
+    "bias_diff_off": (0x034C, 0, 1800),
+    "bias_diff_on": (0x0350, 0, 1800),
+    "bias_diff": (0x0354, 200, 400),
+    "bias_fo": (0x0358, 1250, 1800),
+    "bias_pr": (0x035C, 975, 1800),
+    "bias_refr": (0x0360, 1300, 1800),
+    "bias_hpf": (0x0364, 900, 1800),
+}
+
+NFL_CTRL = 0x0248  # nfl_en [0]
+NFL_THRESH = 0x024C  # evt_thresh [13:0], period_cnt_thresh [23:14]

@@ -1,0 +1,239 @@
+"""Data path: the USB reader thread, its bounded byte queue and EVT3 time-base monitoring.
+
+pyusb has one synchronous read in flight at a time (the HAL keeps 20 asynchronous 128 KiB
+transfers queued). The reader thread therefore does nothing but back-to-back large bulk
+reads (a multiple of ``wMaxPacketSize``) and hands the bytes to a bounded queue; decoding
+and disk writes happen on the consumer's thread (:func:`capture.evk.record`). When the
+queue is full the chunk is dropped, counted and marked by a :class:`Gap` so that the loss is
+reported, never silent.
+"""
+
+from __future__ import annotations
+
+import array
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import usb.core
+
+from .errors import EvkError, usb_error
+
+DRAIN_TIMEOUT_MS = 10
+DRAIN_MAX_READS = 256
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Marker in the queue: ``nbytes`` of data were dropped here (queue overflow)."""
+
+    nbytes: int
+
+
+class ByteQueue:
+    """FIFO of ``bytes`` chunks bounded by total size; never blocks the producer.
+
+    Parameters
+    ----------
+    capacity_bytes : int
+        Maximum bytes held; :meth:`put` refuses a chunk that would exceed it.
+    """
+
+    EOF = object()
+
+    def __init__(self, capacity_bytes: int):
+        self.capacity_bytes = int(capacity_bytes)
+        self._items: deque = deque()
+        self._bytes = 0
+        self._cond = threading.Condition()
+        self._closed = False
+        self.peak_bytes = 0
+
+    def put(self, chunk: bytes) -> bool:
+        """Append ``chunk``; return False (and keep nothing) if it does not fit."""
+        with self._cond:
+            if self._bytes + len(chunk) > self.capacity_bytes:
+                return False
+            self._items.append(chunk)
+            self._bytes += len(chunk)
+            self.peak_bytes = max(self.peak_bytes, self._bytes)
+            self._cond.notify()
+            return True
+
+    def put_gap(self, nbytes: int) -> None:
+        """Record that ``nbytes`` were dropped at this point (merged with a previous gap)."""
+        with self._cond:
+            if self._items and isinstance(self._items[-1], Gap):
+                self._items[-1] = Gap(self._items[-1].nbytes + nbytes)
+            else:
+                self._items.append(Gap(nbytes))
+            self._cond.notify()
+
+    def close(self) -> None:
+        """No more items will come; :meth:`get` returns :attr:`EOF` once empty."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def get(self, timeout_s: float):
+        """Next chunk or :class:`Gap`; ``None`` after ``timeout_s`` without data; :attr:`EOF`
+        when closed and empty."""
+        with self._cond:
+            if not self._items and not self._closed:
+                self._cond.wait(timeout_s)
+            if self._items:
+                item = self._items.popleft()
+                if not isinstance(item, Gap):
+                    self._bytes -= len(item)
+                return item
+            return self.EOF if self._closed else None
+
+
+class Reader(threading.Thread):
+    """Reader thread: back-to-back bulk reads on the data endpoint into a :class:`ByteQueue`.
+
+    Timeouts without data are normal (idle sensor) and only counted. Any other USB error
+    (stall, unplug, I/O) ends the thread with :attr:`error` set; everything read before it
+    stays in the queue.
+
+    Parameters
+    ----------
+    dev : usb.core.Device
+        Claimed device.
+    ep : int
+        Data endpoint address (0x81 on EVK4).
+    read_bytes : int
+        Size of each bulk read, a multiple of wMaxPacketSize.
+    timeout_ms : int
+        Per-read timeout.
+    capacity_bytes : int
+        Queue capacity.
+    end_of_stream : callable, optional
+        Backend hook (file-backed fakes): returns True when no more data will ever come.
+    name : str
+        Camera name for messages.
+    """
+
+    def __init__(self, dev, ep: int, *, read_bytes: int, timeout_ms: int, capacity_bytes: int,
+                 end_of_stream=None, name: str = "EVK"):
+        super().__init__(name=f"evk-reader-{name}", daemon=True)
+        self.dev = dev
+        self.ep = ep
+        self.read_bytes = int(read_bytes)
+        self.timeout_ms = int(timeout_ms)
+        self.queue = ByteQueue(capacity_bytes)
+        self.camera_name = name
+        self._eos = end_of_stream
+        self._stop_event = threading.Event()
+        self.bytes_read = 0
+        self.n_reads = 0
+        self.n_full_reads = 0
+        self.n_timeouts = 0
+        self.dropped_bytes = 0
+        self.n_overflows = 0
+        self.error: EvkError | None = None
+        self.end_of_stream = False
+
+    @staticmethod
+    def drain(dev, ep: int, max_packet: int) -> int:
+        """Discard what is left in the data endpoint (read until a timeout); return bytes."""
+        n = 0
+        buf = array.array("B", bytes(max(max_packet, 1) * 64))
+        for _ in range(DRAIN_MAX_READS):
+            try:
+                got = dev.read(ep, buf, DRAIN_TIMEOUT_MS)
+            except usb.core.USBTimeoutError:
+                return n
+            except usb.core.USBError as exc:
+                raise usb_error(exc, "draining the data endpoint") from exc
+            if got == 0:
+                return n
+            n += got
+        return n
+
+    def run(self) -> None:
+        buf = array.array("B", bytes(self.read_bytes))
+        view = memoryview(buf)
+        read, ep, timeout, size = self.dev.read, self.ep, self.timeout_ms, self.read_bytes
+        queue, eos = self.queue, self._eos
+        try:
+            while not self._stop_event.is_set():
+                try:
+                    n = read(ep, buf, timeout)
+                except usb.core.USBTimeoutError:
+                    self.n_timeouts += 1
+                    if eos is not None and eos():
+                        self.end_of_stream = True
+                        break
+                    continue
+                except usb.core.USBError as exc:
+                    self.error = usb_error(exc, f"reading the data endpoint of {self.camera_name}")
+                    break
+                self.n_reads += 1
+                if n:
+                    self.bytes_read += n
+                    if n == size:
+                        self.n_full_reads += 1
+                    if not queue.put(view[:n].tobytes()):
+                        self.dropped_bytes += n
+                        self.n_overflows += 1
+                        queue.put_gap(n)
+        except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
+            self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
+        finally:
+            queue.close()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Ask the thread to end after its current read and wait for it."""
+        self._stop_event.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+
+
+class TimeHighMonitor:
+    """Detects EVT3 time-base discontinuities: consecutive TIME_HIGH words must step by 0 or
+    1 (mod 4096, so the 24-bit wrap is fine); any other step means lost data (or an idle
+    sensor that emitted no TIME_HIGH, [uncertain] on real hardware).
+
+    Attributes
+    ----------
+    jumps : int
+        Discontinuities seen.
+    jump_offsets : list of int
+        Payload byte offsets (of the chunk) where the first 100 jumps were seen.
+    last_time_high : int or None
+        Last TIME_HIGH value (t >> 12, 12 bits).
+    """
+
+    def __init__(self):
+        self.jumps = 0
+        self.jump_offsets: list[int] = []
+        self.last_time_high: int | None = None
+        self._odd = b""
+        self._offset = 0
+
+    def reset(self) -> None:
+        """Forget the time base (after a known gap, which is counted separately)."""
+        self.last_time_high = None
+
+    def feed(self, chunk: bytes) -> None:
+        """Scan ``chunk`` (payload bytes, any length) for TIME_HIGH steps."""
+        data = self._odd + chunk if self._odd else chunk
+        n = len(data) // 2
+        self._odd = bytes(data[2 * n:])
+        w = np.frombuffer(data, dtype="<u2", count=n)
+        th = w[(w >> 12) == 0x8] & 0xFFF
+        if th.size:
+            if self.last_time_high is not None:
+                steps = np.diff(th, prepend=np.uint16(self.last_time_high)).astype(np.int32) % 4096
+            else:
+                steps = np.diff(th).astype(np.int32) % 4096
+            bad = int(np.count_nonzero(steps > 1))
+            if bad:
+                self.jumps += bad
+                if len(self.jump_offsets) < 100:
+                    self.jump_offsets.append(self._offset)
+            self.last_time_high = int(th[-1])
+        self._offset += len(chunk)
+
