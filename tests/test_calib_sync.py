@@ -1,0 +1,167 @@
+"""Clock alignment on simulated signals with known offset and drift."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.sync import (
+    SyncError, TimeMap, fit_activity, fit_linear, fit_sync_box, frame_difference_energy, led_brightness,
+)
+from capture.events import make_triggers
+
+OFFSET_US = 3_217_456.0   # event-clock time of frame-clock 0
+DRIFT_PPM = 37.0
+
+
+def true_event_us(t_frame_s):
+    return OFFSET_US + (1 + DRIFT_PPM * 1e-6) * np.asarray(t_frame_s) * 1e6
+
+
+def true_frame_s(t_event_us):
+    return (np.asarray(t_event_us) - OFFSET_US) / ((1 + DRIFT_PPM * 1e-6) * 1e6)
+
+
+def led_toggles_us(duration_s, rng, t0_us=0.0, lo_s=0.05, hi_s=0.2):
+    """Pseudo-random blink pattern: toggle times (µs, event clock); LED off before the first."""
+    gaps = rng.uniform(lo_s, hi_s, int(duration_s / lo_s) + 2) * 1e6
+    t = t0_us + np.cumsum(gaps)
+    return t[t < t0_us + duration_s * 1e6]
+
+
+def on_fraction(toggles_frame_s, a_s, b_s):
+    """Fraction of [a, b] during which the LED (off before the first toggle) is on."""
+    tg = np.asarray(toggles_frame_s)
+    state = (np.arange(len(tg)) % 2 == 0).astype(float)  # state after each toggle
+    seg = np.diff(tg)
+    cum = np.concatenate([[0.0], np.cumsum(seg * state[:-1])])
+
+    def F(x):
+        i = np.searchsorted(tg, x, side="right") - 1
+        ok = i >= 0
+        ic = np.clip(i, 0, len(tg) - 1)
+        return np.where(ok, cum[ic] + (x - tg[ic]) * state[ic], 0.0)
+
+    return (F(b_s) - F(a_s)) / (b_s - a_s)
+
+
+def simulate_sync_box(fps, exposure_frac, duration_s, seed):
+    rng = np.random.default_rng(seed)
+    t_frame = np.arange(int(duration_s * fps)) / fps
+    tog_us = led_toggles_us(duration_s + 4, rng, t0_us=OFFSET_US - 2e6)
+    tog_us = np.round(tog_us)  # trigger timestamps are integer µs
+    e = exposure_frac / fps
+    frac = on_fraction(true_frame_s(tog_us), t_frame, t_frame + e)
+    triggers = make_triggers(tog_us.astype(np.int64), 0, (np.arange(len(tog_us)) % 2 == 0).astype(np.int8))
+    return t_frame, frac, e, triggers, rng
+
+
+@pytest.mark.parametrize("fps,exposure_frac", [(240000 / 1001, 1.0), (240000 / 1001, 0.5), (60000 / 1001, 0.5)])
+def test_sync_box_meets_half_millisecond(fps, exposure_frac):
+    t_frame, frac, e, triggers, rng = simulate_sync_box(fps, exposure_frac, 30.0, seed=int(fps))
+    brightness = 40 + 150 * frac + rng.normal(0, 1.5, len(frac))
+    tmap = fit_sync_box(brightness, t_frame, triggers, exposure_s=e)
+    err = np.abs(tmap.to_event_us(t_frame) - true_event_us(t_frame))
+    print(f"sync box fps={fps:.2f} exp={exposure_frac}: max err {err.max():.1f} us, "
+          f"drift {tmap.drift_ppm:.2f} ppm, sigma {tmap.sigma_us(t_frame).max():.1f} us, n={tmap.n}")
+    assert err.max() <= 500.0
+    assert abs(tmap.drift_ppm - DRIFT_PPM) < 10
+    assert err.max() < 5 * tmap.sigma_us(t_frame).max() + 50  # the uncertainty is honest
+    assert tmap.n > 100
+
+
+def test_sync_box_from_images_finds_led_roi():
+    fps = 120.0
+    t_frame, frac, e, triggers, rng = simulate_sync_box(fps, 1.0, 12.0, seed=5)
+
+    def frames():
+        for f in frac:
+            img = rng.normal(60, 2, (24, 32)).clip(0, 255)
+            img[10:14, 20:24] += 160 * f  # the LED
+            yield img.astype(np.uint8)
+
+    b, roi = led_brightness(frames(), grid=8)
+    assert roi == (20, 9, 24, 12)
+    tmap = fit_sync_box(b, t_frame, triggers, exposure_s=e, channel=0)
+    err = np.abs(tmap.to_event_us(t_frame) - true_event_us(t_frame))
+    print(f"sync box from images: max err {err.max():.1f} us")
+    assert err.max() <= 500.0
+
+
+def test_sync_box_errors():
+    t_frame, frac, e, triggers, rng = simulate_sync_box(120.0, 1.0, 5.0, seed=1)
+    with pytest.raises(SyncError, match="no trigger events on channel 3"):
+        fit_sync_box(frac, t_frame, triggers, exposure_s=e, channel=3)
+    with pytest.raises(SyncError, match="constant"):
+        fit_sync_box(np.ones_like(frac), t_frame, triggers, exposure_s=e)
+    # triggers from a different pattern: no consistent offset
+    other = simulate_sync_box(120.0, 1.0, 5.0, seed=99)[3]
+    with pytest.raises(SyncError, match="pattern"):
+        fit_sync_box(frac, t_frame, other[: len(other) // 3], exposure_s=e)
+
+
+def simulate_activity(fps, duration_s, seed, n_events=400_000):
+    rng = np.random.default_rng(seed)
+    t_frame = np.arange(int(duration_s * fps)) / fps
+    ev0, ev1 = true_event_us(-1.0), true_event_us(duration_s + 1.0)
+    dt_us = 100.0
+    grid = np.arange(ev0, ev1, dt_us)
+    act = np.full(len(grid), 0.3)
+    for c in rng.uniform(ev0, ev1, int(4 * (duration_s + 2))):
+        w = rng.uniform(5e3, 40e3)
+        act += rng.uniform(1, 5) * np.exp(-0.5 * ((grid - c) / w) ** 2)
+    lam = act / act.sum() * n_events
+    counts = rng.poisson(lam)
+    ev_t = np.repeat(grid, counts) + rng.uniform(0, dt_us, counts.sum())
+    ev_t = np.sort(ev_t).astype(np.int64)
+    cum = np.concatenate([[0.0], np.cumsum(act * dt_us)])
+    half = 0.5 / fps
+    lo, hi = true_event_us(t_frame[:-1] + half), true_event_us(t_frame[1:] + half)
+    integ = np.interp(hi, np.append(grid, grid[-1] + dt_us), cum) - np.interp(lo, np.append(grid, grid[-1] + dt_us), cum)
+    energy = 7.0 * integ / integ.std()
+    energy += rng.normal(0, 0.3 * energy.std(), len(energy))
+    return t_frame, ev_t, energy
+
+
+@pytest.mark.parametrize("fps", [120.0, 240000 / 1001])
+def test_activity_within_one_frame(fps):
+    t_frame, ev_t, energy = simulate_activity(fps, 20.0, seed=int(fps))
+    tmap = fit_activity(ev_t, t_frame, energy)
+    err = np.abs(tmap.to_event_us(t_frame) - true_event_us(t_frame))
+    period_us = 1e6 / fps
+    print(f"activity fps={fps:.2f}: max err {err.max():.1f} us = {err.max() / period_us:.3f} frame, "
+          f"drift {tmap.drift_ppm:.1f} ppm, sigma {tmap.sigma_us(t_frame).max():.1f} us")
+    assert err.max() <= period_us
+    assert tmap.method == "activity"
+
+
+def test_activity_no_common_motion_is_an_error():
+    t_frame, ev_t, energy = simulate_activity(120.0, 6.0, seed=3)
+    rng = np.random.default_rng(0)
+    with pytest.raises(SyncError, match="do not correlate"):
+        fit_activity(ev_t, t_frame, rng.permutation(energy))
+    with pytest.raises(SyncError, match="expected len"):
+        fit_activity(ev_t, t_frame, energy[:-3])
+
+
+def test_frame_difference_energy():
+    frames = [np.zeros((8, 8), np.uint8) for _ in range(4)]
+    frames[2][:4] = 100  # change between 1->2 and back 2->3
+    e = frame_difference_energy((i, i / 60, f) for i, f in enumerate(frames))
+    np.testing.assert_allclose(e, [0.0, 50.0, 50.0])
+
+
+def test_time_map_roundtrip_inverse_and_dict():
+    x = np.linspace(0, 100, 50)
+    rng = np.random.default_rng(0)
+    y = true_event_us(x) + rng.normal(0, 20, len(x))
+    tm = fit_linear(x, y, np.full(len(x), 20.0), method="sync_box")
+    assert abs(tm.drift_ppm - DRIFT_PPM) < 1.0
+    assert abs(tm.to_event_us(50.0) - true_event_us(50.0)) < 4 * tm.sigma_us(50.0)
+    assert tm.sigma_us(0.0) > tm.sigma_us(tm.t_ref_s)
+    np.testing.assert_allclose(tm.to_frame_s(tm.to_event_us(x)), x, atol=1e-12)
+    d = json.loads(json.dumps(tm.to_dict()))
+    tm2 = TimeMap.from_dict(d)
+    np.testing.assert_allclose(tm2.to_event_us(x), tm.to_event_us(x))
+    np.testing.assert_allclose(tm2.cov, tm.cov)
+    assert d["method"] == "sync_box" and d["sigma_drift_ppm"] > 0
