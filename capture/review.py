@@ -86,7 +86,7 @@ BALL_COLOR = (255, 210, 0)
 AXIS_COLOR = (80, 160, 255)
 
 DEFAULT_SLICE_US = 2000
-DEFAULT_MAX_EVENTS_PER_SLICE = 4000
+DEFAULT_MAX_EVENTS_PER_SLICE = 2000
 
 
 class ReviewError(Exception):
@@ -319,42 +319,48 @@ class _Logger:
                       f"{self.stats.n_events} events logged", level="WARN")
 
     def _emit(self, ev: np.ndarray) -> None:
+        """Log whole slices: one ``send_columns`` per polarity plus one for the event rate.
+
+        A row is logged per non-empty slice and per first empty slice after one
+        (an empty row, which clears the points; rate 0).
+        """
         if len(ev) == 0:
             return
-        sid = ev["t"] // self.slice_us
-        starts = np.flatnonzero(np.r_[True, sid[1:] != sid[:-1]])
-        counts = np.diff(np.r_[starts, len(ev)])
-        slice_sid = sid[starts]
-        stride = -(-counts // self.cap)
-        within = np.arange(len(ev)) - np.repeat(starts, counts)
-        keep = within % np.repeat(stride, counts) == 0
-        kept = ev[keep]
-        kept_slice = np.repeat(np.arange(len(starts)), counts)[keep]
-        slice_t = slice_sid * self.slice_us
+        S = self.slice_us
+        t = ev["t"]
+        s0, s1 = int(t[0]) // S, int(t[-1]) // S
+        edges = np.searchsorted(t, np.arange(s0, s1 + 2, dtype=np.int64) * S, side="left")
+        counts = np.diff(edges)
+        stride = np.maximum(1, -(-counts // self.cap))
+        n_kept = -(-counts // stride)
+        if np.all(stride == 1):
+            kept = ev
+        else:
+            first = np.cumsum(n_kept) - n_kept
+            idx = (np.repeat(edges[:-1], n_kept)
+                   + (np.arange(n_kept.sum()) - np.repeat(first, n_kept)) * np.repeat(stride, n_kept))
+            kept = ev[idx]
+        kept_slice = np.repeat(np.arange(len(counts)), n_kept)
+        nonempty = counts > 0
+        rows = nonempty.copy()
+        rows[1:] |= nonempty[:-1]
+        gap_before = self._last_sid is not None and s0 > self._last_sid + 1
+        row_t = np.r_[[(self._last_sid + 1) * S] if gap_before else [], np.arange(s0, s1 + 1)[rows] * S]
+        pad = np.zeros(int(gap_before), np.int64)
+        index = [_time_column(row_t)]
+        xy = np.empty((len(kept), 2), dtype=np.float32)
+        xy[:, 0] = kept["x"]
+        xy[:, 1] = kept["y"]
+        xy += PIXEL_OFFSET
         on = kept["p"] != 0
         for path, mask in ((EVENTS_ON, on), (EVENTS_OFF, ~on)):
-            sub = kept[mask]
-            xy = np.empty((len(sub), 2), dtype=np.float32)
-            xy[:, 0] = sub["x"]
-            xy[:, 1] = sub["y"]
-            xy += PIXEL_OFFSET
-            lengths = np.bincount(kept_slice[mask], minlength=len(starts))
-            self.rec.send_columns(path, indexes=[_time_column(slice_t)],
-                                  columns=rr.Points2D.columns(positions=xy).partition(lengths))
-        self.rec.send_columns(PLOT_EVENT_RATE, indexes=[_time_column(slice_t)],
-                              columns=rr.Scalars.columns(scalars=counts / (self.slice_us * 1e-6)))
-        # Slices without events: clear the points and log a zero rate there.
-        prev = np.r_[slice_sid[0] - 1 if self._last_sid is None else self._last_sid, slice_sid[:-1]]
-        gap_t = (prev[slice_sid > prev + 1] + 1) * self.slice_us
-        if len(gap_t):
-            for path in (EVENTS_ON, EVENTS_OFF):
-                self.rec.send_columns(path, indexes=[_time_column(gap_t)],
-                                      columns=rr.Points2D.columns(positions=np.zeros((0, 2), np.float32))
-                                      .partition(np.zeros(len(gap_t), np.int64)))
-            self.rec.send_columns(PLOT_EVENT_RATE, indexes=[_time_column(gap_t)],
-                                  columns=rr.Scalars.columns(scalars=np.zeros(len(gap_t))))
-        self._last_sid = int(slice_sid[-1])
-        self.stats.n_slices += len(starts)
+            lengths = np.r_[pad, np.bincount(kept_slice[mask], minlength=len(counts))[rows]]
+            self.rec.send_columns(path, indexes=index,
+                                  columns=rr.Points2D.columns(positions=xy[mask]).partition(lengths))
+        rate = np.r_[pad, counts[rows]] / (S * 1e-6)
+        self.rec.send_columns(PLOT_EVENT_RATE, indexes=index, columns=rr.Scalars.columns(scalars=rate))
+        self._last_sid = s1
+        self.stats.n_slices += int(np.count_nonzero(nonempty))
         self.stats.n_slices_decimated += int(np.count_nonzero(stride > 1))
         self.stats.n_events_logged += len(kept)
 
@@ -445,6 +451,18 @@ def _open(session_or_path) -> Session:
     if session_or_path is None:
         raise SessionError("no session given")
     return open_session(session_or_path)
+
+
+def _frames_info(session: Session) -> dict:
+    """Like ``Session.frames()`` but with ``image`` as the lazy on-disk array (frames read one by one)."""
+    if "frames" not in session.root:
+        return {"t_us": np.zeros(0, np.int64), "image": None, "video": None}
+    group = session.root["frames"]
+    n = int(group.attrs.get("n_committed", 0))
+    video = group.attrs.get("video")
+    return {"t_us": group["t_us"][:n] if "t_us" in group else np.zeros(0, np.int64),
+            "image": group["image"] if "image" in group and n else None,
+            "video": str(session.path / video) if video else None}
 
 
 def _check_rrd_path(rrd_path) -> Path:
@@ -545,7 +563,7 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
 
     session = _open(session_or_path)
     rrd_path = _check_rrd_path(rrd_path)
-    frames = session.frames()
+    frames = _frames_info(session)
     has_images = frames["image"] is not None or frames["video"] is not None
     rec = _recording(session_recording_id(session))
     rec.save(rrd_path)
@@ -568,10 +586,9 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
             _log_video(lg, session, frames["video"], frames["t_us"], video_max_bytes=video_max_bytes,
                        jpeg_quality=jpeg_quality, frame_stride=max(1, int(frame_stride)))
         elif frames["image"] is not None:
-            images = session.root["frames"]["image"]
             for i, t in enumerate(frames["t_us"]):
-                lg.frame_image(int(t), images[i], jpeg_quality)
-        if mapping is not None and len(frames["t_us"]) and len(track):
+                lg.frame_image(int(t), frames["image"][i], jpeg_quality)
+        if has_images and mapping is not None and len(frames["t_us"]) and len(track):
             lg.frame_circles(frames["t_us"], track, mapping)
         rec.flush()
     finally:

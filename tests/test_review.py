@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 import threading
@@ -217,6 +218,8 @@ def test_streaming_batch_size_does_not_change_result(written, tmp_path):
         (stats.n_events, stats.n_events_logged, stats.n_slices)
 
 
+# The MP4 inside the session directory makes Zarr warn when it consolidates the metadata.
+@pytest.mark.filterwarnings("ignore:Object at gopro.mp4 is not recognized")
 def test_video_that_rerun_cannot_decode_falls_back_to_images(tmp_path):
     session = _make_session(tmp_path / "session", frames="video")
     stats = review.write_rrd(session, tmp_path / "v.rrd", progress=False)
@@ -310,6 +313,16 @@ def test_live_review_none_costs_nothing():
     live.log_status(0, drops=1)
     live.close()
     assert live.stats is None and threading.active_count() == before
+
+
+def test_live_review_serve_mode_gives_url():
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    live = review.LiveReview("serve", grpc_port=port, width=64, height=48)
+    live.log_status(1000, drops=2)
+    live.close()
+    assert live.url == f"rerun+http://127.0.0.1:{port}/proxy" and live.error is None
 
 
 def test_live_review_bad_arguments():
