@@ -654,12 +654,16 @@ class LiveReview:
             return
         rec = _recording(recording_id)
         bp = blueprint(frames=frames, width=width, height=height, status=True)
-        if mode == "spawn":
-            rec.spawn(port=grpc_port or 9876, default_blueprint=bp)
-        elif mode == "serve":
-            self.url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=bp)
-        else:
+        if mode == "rrd":
             rec.save(_check_rrd_path(rrd_path))
+        else:
+            try:
+                if mode == "spawn":
+                    rec.spawn(port=grpc_port or 9876, default_blueprint=bp)
+                else:
+                    self.url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=bp)
+            except Exception as exc:  # rerun raises several types (missing viewer, port in use)
+                raise ReviewError(f"cannot start the Rerun viewer (mode {mode!r}): {exc}") from exc
         rec.send_blueprint(bp)
         if name:
             rec.send_recording_name(name)

@@ -21,11 +21,21 @@ from capture.events import make_events, make_triggers
 from capture.session import SessionError, create_session, open_session
 from detect.track import Track
 
+import rerun as rr
+
 SLICE_US = 1000
 CAP = 500
 H_FRAME_FROM_EVENT = [[0.5, 0.0, 3.0], [0.0, 0.5, 4.0], [0.0, 0.0, 1.0]]
 SLICES = {10_000: 300, 11_000: 1200, 15_000: 700}
 """Slice start (µs) -> number of events; 12-15 ms is empty; 1200 and 700 exceed CAP."""
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _rerun_strict():
+    """Make Rerun raise on bad data instead of logging a warning."""
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
 
 
 def _events(seed: int = 0) -> np.ndarray:
