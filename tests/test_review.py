@@ -1,0 +1,353 @@
+"""Rerun review: write a small session's .rrd, read it back with rerun's own reader, check values."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import threading
+from collections import defaultdict
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pytest
+from rerun.chunk import RrdReader
+
+from capture import review
+from capture.events import make_events, make_triggers
+from capture.session import SessionError, create_session, open_session
+from detect.track import Track
+
+import rerun as rr
+
+SLICE_US = 1000
+CAP = 500
+H_FRAME_FROM_EVENT = [[0.5, 0.0, 3.0], [0.0, 0.5, 4.0], [0.0, 0.0, 1.0]]
+SLICES = {10_000: 300, 11_000: 1200, 15_000: 700}
+"""Slice start (µs) -> number of events; 12-15 ms is empty; 1200 and 700 exceed CAP."""
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _rerun_strict():
+    """Make Rerun raise on bad data instead of logging a warning."""
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
+
+
+def _events(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.concatenate([np.sort(rng.integers(t0, t0 + SLICE_US, n)) for t0, n in SLICES.items()])
+    n = len(t)
+    return make_events(t, rng.integers(0, 64, n), rng.integers(0, 48, n), rng.integers(0, 2, n))
+
+
+def _track() -> Track:
+    t = np.r_[np.arange(10_000, 13_001, 500), np.arange(15_000, 16_001, 500)]
+    flight = np.r_[np.zeros(7, int), np.ones(3, int)]
+    return Track(t_us=t, cx=10.0 + 0.004 * (t - 10_000), cy=20.0 + flight * 5, r=np.where(flight, 6.0, 8.0),
+                 vx=np.full(len(t), 4000.0), vy=np.zeros(len(t)), score=np.ones(len(t)), flight=flight)
+
+
+SPIN = {"t_start_us": np.array([10_000, 11_000, 15_000]), "t_end_us": np.array([11_000, 12_000, 16_000]),
+        "axis": np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0.6, 0.8]]),
+        "omega_rad_s": 2 * np.pi * np.array([10.0, 20.0, 30.5]), "rps": np.array([10.0, 20.0, 30.5]),
+        "velocity_px_s": np.zeros((3, 2)), "confidence": np.array([0.9, 0.5, 0.25], np.float32)}
+FRAME_T = np.array([10_500, 12_500, 14_000])
+
+
+def _image(i: int) -> np.ndarray:
+    yy, xx = np.mgrid[0:24, 0:32]
+    return np.stack([xx * 7, yy * 9, np.full_like(xx, 60 * i)], axis=-1).astype(np.uint8)
+
+
+def _make_session(path: Path, *, frames: str = "images") -> Path:
+    with create_session(path, width=64, height=48,
+                        attrs={"calibration": {"homography_frame_from_event": H_FRAME_FROM_EVENT}}) as w:
+        w.append_events(_events())
+        w.append_triggers(make_triggers([10_100, 15_100], [0, 0], [1, 0]))
+        w.write_track(_track())
+        w.write_spin(SPIN)
+        if frames == "images":
+            w.append_frames(FRAME_T, np.stack([_image(i) for i in range(3)]))
+        elif frames == "video":
+            video = cv2.VideoWriter(str(path / "gopro.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (32, 24))
+            for i in range(3):
+                video.write(cv2.cvtColor(_image(i), cv2.COLOR_RGB2BGR))
+            video.release()
+            w.set_video("gopro.mp4", FRAME_T)
+    return path
+
+
+def read_rrd(path) -> dict:
+    """entity -> component -> list of (t_us or None for static, value) in time order."""
+    out: dict = defaultdict(lambda: defaultdict(list))
+    for chunk in RrdReader(path).stream():
+        rb = chunk.to_record_batch()
+        names = rb.schema.names
+        if review.TIMELINE in names:
+            assert rb.schema.field(review.TIMELINE).type == pa.duration("ns")
+            t = list(rb.column(review.TIMELINE).cast(pa.int64()).to_numpy() // 1000)
+        else:
+            t = [None] * rb.num_rows
+        for name in names:
+            if name.startswith("rerun.") or name == review.TIMELINE:
+                continue
+            out[chunk.entity_path][name].extend(zip(t, rb.column(name).to_pylist()))
+    for comps in out.values():
+        for rows in comps.values():
+            rows.sort(key=lambda row: -1 if row[0] is None else row[0])
+    return out
+
+
+def _temporal(rows):
+    return [(t, v) for t, v in rows if t is not None]
+
+
+def _texts(data) -> list[str]:
+    return [text for _, row in data["/log"]["TextLog:text"] for text in row]
+
+
+def _expected_logged(events: np.ndarray) -> int:
+    _, counts = np.unique(events["t"] // SLICE_US, return_counts=True)
+    return int(np.sum(-(-counts // -(-counts // CAP))))
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("review")
+    session = _make_session(tmp / "session")
+    stats = review.write_rrd(session, tmp / "out.rrd", slice_us=SLICE_US, max_events_per_slice=CAP,
+                             batch_events=777, progress=False)
+    return session, tmp / "out.rrd", stats, read_rrd(tmp / "out.rrd")
+
+
+def test_one_recording_with_blueprint_and_timeline(written):
+    session, rrd, _, data = written
+    reader = RrdReader(rrd)
+    (rec,) = reader.recordings()
+    assert rec.application_id == review.APPLICATION_ID
+    assert rec.recording_id == review.session_recording_id(open_session(session))
+    assert len(reader.blueprints()) == 1
+    for entity in ("/events/on", "/events/off", "/events/ball", "/frames/image", "/frames/ball",
+                   "/ball3d/axis", "/ball3d/sphere", "/plots/rps", "/plots/axis/azimuth_deg",
+                   "/plots/axis/elevation_deg", "/plots/confidence", "/plots/event_rate/events_ev_s"):
+        assert entity in data, entity
+    temporal = [c for c in reader.stream() if not c.is_static]
+    assert temporal and all(c.timeline_names == [review.TIMELINE] for c in temporal)
+
+
+def test_events_sliced_split_by_polarity_and_decimated_by_stride(written):
+    _, _, stats, data = written
+    events = _events()
+    on = _temporal(data["/events/on"]["Points2D:positions"])
+    off = _temporal(data["/events/off"]["Points2D:positions"])
+    logged = sum(len(v) for _, v in on) + sum(len(v) for _, v in off)
+    assert logged == stats.n_events_logged == _expected_logged(events) == 300 + 400 + 350
+    assert stats.n_events == len(events) and stats.n_slices == 3 and stats.n_slices_decimated == 2
+    # The undecimated first slice is logged exactly, at its start time, ON and OFF apart.
+    first = events[events["t"] < 11_000]
+    for rows, pol in ((on, 1), (off, 0)):
+        t, xy = rows[0]
+        assert t == 10_000
+        sel = first[first["p"] == pol]
+        np.testing.assert_array_equal(np.array(xy), np.c_[sel["x"], sel["y"]] + review.PIXEL_OFFSET)
+    # The decimated second slice keeps every 3rd event of the slice.
+    second = events[(events["t"] >= 11_000) & (events["t"] < 12_000)][::3]
+    t, xy = on[1]
+    assert t == 11_000
+    sel = second[second["p"] == 1]
+    np.testing.assert_array_equal(np.array(xy), np.c_[sel["x"], sel["y"]] + review.PIXEL_OFFSET)
+    # The first empty slice clears the points.
+    assert (12_000, []) in on and (12_000, []) in off
+    assert any("decimated" in text for text in _texts(data))
+
+
+def test_event_rate_per_slice_before_decimation(written):
+    _, _, _, data = written
+    rate = dict((t, v[0]) for t, v in _temporal(data["/plots/event_rate/events_ev_s"]["Scalars:scalars"]))
+    assert rate == {10_000: 300_000.0, 11_000: 1_200_000.0, 12_000: 0.0, 15_000: 700_000.0}
+
+
+def test_ball_circle_follows_track_and_clears_after_flight(written):
+    _, _, _, data = written
+    track = _track()
+    centers = dict(_temporal(data["/events/ball"]["Ellipses2D:centers"]))
+    sizes = dict(_temporal(data["/events/ball"]["Ellipses2D:half_sizes"]))
+    for i in (0, 3, 8):
+        t = int(track.t_us[i])
+        np.testing.assert_allclose(centers[t][0], [track.cx[i] + 0.5, track.cy[i] + 0.5], rtol=1e-6)
+        np.testing.assert_allclose(sizes[t][0], [track.r[i], track.r[i]])
+    assert sizes[13_000 + SLICE_US] == [] and sizes[16_000 + SLICE_US] == []
+
+
+def test_spin_series_and_axis(written):
+    _, _, _, data = written
+    mid = (SPIN["t_start_us"] + SPIN["t_end_us"]) // 2
+
+    def series(entity):
+        rows = _temporal(data[entity]["Scalars:scalars"])
+        assert [t for t, _ in rows] == list(mid)
+        return np.array([v[0] for _, v in rows])
+
+    np.testing.assert_allclose(series("/plots/rps"), SPIN["rps"])
+    np.testing.assert_allclose(series("/plots/confidence"), SPIN["confidence"], rtol=1e-6)
+    np.testing.assert_allclose(series("/plots/axis/azimuth_deg"), [90.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(series("/plots/axis/elevation_deg"),
+                               [0.0, 90.0, np.degrees(np.arcsin(-0.6))], atol=1e-9)
+    vectors = [np.array(v[0]) for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:vectors"])]
+    for vec, axis in zip(vectors, SPIN["axis"]):
+        np.testing.assert_allclose(vec / np.linalg.norm(vec), axis, atol=1e-6)
+    labels = [v[0] for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:labels"])]
+    assert labels == ["10.0 rps", "20.0 rps", "30.5 rps"]
+
+
+def test_frames_as_images_with_mapped_circle(written):
+    _, _, stats, data = written
+    blobs = _temporal(data["/frames/image"]["EncodedImage:blob"])
+    assert [t for t, _ in blobs] == list(FRAME_T) and stats.n_frames == 3
+    decoded = cv2.cvtColor(cv2.imdecode(np.frombuffer(bytes(blobs[1][1][0]), np.uint8), cv2.IMREAD_COLOR),
+                           cv2.COLOR_BGR2RGB)
+    assert np.abs(decoded.astype(int) - _image(1)).mean() < 4
+    circles = dict(_temporal(data["/frames/ball"]["Ellipses2D:centers"]))
+    sizes = dict(_temporal(data["/frames/ball"]["Ellipses2D:half_sizes"]))
+    cx, cy, r, _, _ = _track().at(12_500)
+    np.testing.assert_allclose(circles[12_500][0], [0.5 * cx + 3 + 0.5, 0.5 * cy + 4 + 0.5], rtol=1e-6)
+    np.testing.assert_allclose(sizes[12_500][0], [0.5 * r, 0.5 * r], rtol=1e-6)
+    assert circles[14_000] == []  # no ball between flights
+
+
+def test_streaming_batch_size_does_not_change_result(written, tmp_path):
+    session, _, stats, _ = written
+    again = review.write_rrd(session, tmp_path / "big.rrd", slice_us=SLICE_US, max_events_per_slice=CAP,
+                             batch_events=1 << 20, progress=False)
+    assert (again.n_events, again.n_events_logged, again.n_slices) == \
+        (stats.n_events, stats.n_events_logged, stats.n_slices)
+
+
+# The MP4 inside the session directory makes Zarr warn when it consolidates the metadata.
+@pytest.mark.filterwarnings("ignore:Object at gopro.mp4 is not recognized")
+def test_video_that_rerun_cannot_decode_falls_back_to_images(tmp_path):
+    session = _make_session(tmp_path / "session", frames="video")
+    stats = review.write_rrd(session, tmp_path / "v.rrd", progress=False)
+    data = read_rrd(tmp_path / "v.rrd")
+    assert [t for t, _ in _temporal(data["/frames/image"]["EncodedImage:blob"])] == list(FRAME_T)
+    assert stats.n_frames == 3
+    assert any("not embedded" in text for text in _texts(data))
+
+
+def test_bad_inputs_give_clear_errors(tmp_path):
+    with pytest.raises(SessionError, match="no such session directory"):
+        review.write_rrd(tmp_path / "missing", tmp_path / "x.rrd", progress=False)
+    (tmp_path / "plain").mkdir()
+    with pytest.raises(SessionError, match="not a session"):
+        review.write_rrd(tmp_path / "plain", tmp_path / "x.rrd", progress=False)
+    session = _make_session(tmp_path / "session", frames="none")
+    with pytest.raises(review.ReviewError, match="is a directory"):
+        review.write_rrd(session, tmp_path, progress=False)
+    with pytest.raises(review.ReviewError, match="max_events_per_slice"):
+        review.write_rrd(session, tmp_path / "x.rrd", max_events_per_slice=0, progress=False)
+
+
+def test_cli(tmp_path, capsys):
+    session = _make_session(tmp_path / "session", frames="none")
+    assert review.main([str(session), "--rrd", str(tmp_path / "cli.rrd"), "--no-progress"]) == 0
+    assert "1200" not in capsys.readouterr().err and RrdReader(tmp_path / "cli.rrd").recordings()
+    proc = subprocess.run([sys.executable, "-m", "capture.review", str(tmp_path / "nope"), "--rrd",
+                           str(tmp_path / "n.rrd")], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().count("\n") == 0 and "no such session directory" in proc.stderr
+
+
+def test_live_review_rrd_mode_writes_same_layout(tmp_path):
+    events = _events(seed=1)
+    estimate = SimpleNamespace(**{k: (v[2] if k != "axis" else v[2].copy()) for k, v in SPIN.items()})
+    with review.LiveReview("rrd", rrd_path=tmp_path / "live.rrd", width=64, height=48, recording_id="rec-1",
+                           slice_us=SLICE_US, max_events_per_slice=CAP) as live:
+        for part in np.array_split(events, 4):
+            live.log_events(part)
+        live.log_track(_track())
+        live.log_spin(estimate)
+        live.log_frame(14_500, _image(2))
+        live.log_status(15_500, drops=3, event_rate_ev_s=1.5e6)
+        live.log_message("hello")
+    assert live.skipped == {} and live.error is None
+    (rec,) = RrdReader(tmp_path / "live.rrd").recordings()
+    assert rec.recording_id == "rec-1"
+    data = read_rrd(tmp_path / "live.rrd")
+    logged = sum(len(v) for e in ("/events/on", "/events/off")
+                 for _, v in _temporal(data[e]["Points2D:positions"]))
+    assert logged == live.stats.n_events_logged == _expected_logged(events)
+    assert _temporal(data["/plots/status/drops"]["Scalars:scalars"]) == [(15_500, [3.0])]
+    assert _temporal(data["/plots/rps"]["Scalars:scalars"]) == [(15_500, [30.5])]
+    assert [t for t, _ in _temporal(data["/frames/image"]["EncodedImage:blob"])] == [14_500]
+    assert "hello" in [text for text in _texts(data)]
+    # the 2D spin axis sits on the ball centre at the estimate's time
+    origin = _temporal(data["/events/spin_axis"]["Arrows2D:origins"])[0]
+    cx, cy, _, _, _ = _track().at(15_500)
+    np.testing.assert_allclose(origin[1][0], [cx + 0.5, cy + 0.5], rtol=1e-6)
+
+
+def test_live_review_skips_instead_of_blocking(tmp_path, monkeypatch):
+    gate, busy = threading.Event(), threading.Event()
+    handle = review.LiveReview._handle
+
+    def slow_handle(self, kind, payload):
+        busy.set()
+        gate.wait(10)
+        handle(self, kind, payload)
+
+    monkeypatch.setattr(review.LiveReview, "_handle", slow_handle)
+    live = review.LiveReview("rrd", rrd_path=tmp_path / "s.rrd", max_queue=1, slice_us=SLICE_US)
+    events = _events()
+    live.log_events(events[:100])
+    assert busy.wait(10)  # the thread now holds the first batch
+    live.log_events(events[100:200])  # fills the queue
+    live.log_events(events[200:300])  # skipped, returns at once
+    live.log_status(11_000, drops=1)  # skipped
+    assert live.skipped == {"events": 1, "status": 1}
+    gate.set()
+    live.close()
+    data = read_rrd(tmp_path / "s.rrd")
+    assert live.stats.n_events == 200
+    assert any("skipped" in text for text in _texts(data))
+
+
+def test_live_review_none_costs_nothing():
+    before = threading.active_count()
+    live = review.LiveReview("none")
+    live.log_events(_events())
+    live.log_status(0, drops=1)
+    live.close()
+    assert live.stats is None and threading.active_count() == before
+
+
+def test_live_review_serve_mode_gives_url():
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    live = review.LiveReview("serve", grpc_port=port, width=64, height=48)
+    live.log_status(1000, drops=2)
+    live.close()
+    assert live.url == f"rerun+http://127.0.0.1:{port}/proxy" and live.error is None
+
+
+def test_live_review_bad_arguments():
+    with pytest.raises(review.ReviewError, match="viewer mode"):
+        review.LiveReview("window")
+    with pytest.raises(review.ReviewError, match="rrd_path"):
+        review.LiveReview("rrd")
+
+
+def test_axis_angles_and_circle_at():
+    az, el = review.axis_angles_deg([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-1, 0, 0]])
+    np.testing.assert_allclose(az, [0, 90, 0, -90], atol=1e-9)
+    np.testing.assert_allclose(el, [0, 0, 90, 0], atol=1e-9)
+    track = _track()
+    cx, cy, r, valid = review.circle_at(track, [10_250, 14_000, 15_500, 20_000])
+    np.testing.assert_array_equal(valid, [True, False, True, False])
+    np.testing.assert_allclose([cx[0], cy[0], r[0]], track.at(10_250)[:3])
+    np.testing.assert_allclose([cx[2], cy[2], r[2]], track.at(15_500)[:3])
