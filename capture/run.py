@@ -67,6 +67,8 @@ class RecordSettings:
         Stop after this long.
     min_free_bytes : int
         Stop recording when the disk has less free space.
+    flush_interval_s : float
+        Longest wall time between commits of the session store (what a crash can lose).
     analyse : bool
         Run the offline analysis (track + spin + ``.rrd``) when the recording ends.
     attrs : dict
@@ -85,6 +87,7 @@ class RecordSettings:
     viewer: str = "none"
     max_duration_s: float | None = None
     min_free_bytes: int = 500 * 2**20
+    flush_interval_s: float = 0.5
     analyse: bool = True
     quiet: bool = False
     attrs: dict = field(default_factory=dict)
@@ -184,7 +187,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                             "width": info.width, "height": info.height,
                             "biases": camera.get_biases()},
                  "raw_file": RAW_NAME, **settings.attrs}
-        writer = create_session(out, width=info.width, height=info.height, attrs=attrs)
+        writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
+                                flush_interval_s=settings.flush_interval_s)
         review = None
         if settings.viewer != "none":
             review = LiveReview(settings.viewer, width=info.width, height=info.height,

@@ -39,6 +39,8 @@ from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
 warnings.filterwarnings("ignore", message="Consolidated metadata is currently not", category=UserWarning)
+# A session directory also holds non-Zarr files (the RAW byte stream, the GoPro video).
+warnings.filterwarnings("ignore", message="Object at .* is not recognized as a component", category=UserWarning)
 
 SCHEMA_VERSION = 1
 SESSION_KIND = "courtside-spin session"
