@@ -103,14 +103,14 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
     """Frames of a session in event-sensor geometry: ``(t_us, image)``, lazily.
 
     Frames come from the stored images or from the attached video. They are
-    warped by the stored frame-to-event homography (attrs ``calibration``,
-    key ``frame_to_event_homography``); without one, only frames already of the
-    sensor's size are used (the same view), and none otherwise.
+    warped by the stored frame-to-event homography (attrs ``calibration``, key
+    ``homography``, see ``calib.stereo.CameraPair``); without one, only frames
+    already of the sensor's size are used (the same view), and none otherwise.
     """
     from capture.gopro import read_video
 
     frames = session.frames()
-    H = (session.attrs.get("calibration") or {}).get("frame_to_event_homography")
+    H = (session.attrs.get("calibration") or {}).get("homography")
     H = None if H is None else np.asarray(H, np.float64).reshape(3, 3)
 
     def to_sensor(img):
