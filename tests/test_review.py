@@ -201,7 +201,9 @@ def test_ball_circle_follows_track_and_clears_after_flight(written):
         t = int(track.t_us[i])
         np.testing.assert_allclose(centers[t][0], [track.cx[i] + 0.5, track.cy[i] + 0.5], rtol=1e-6)
         np.testing.assert_allclose(sizes[t][0], [track.r[i], track.r[i]])
-    assert sizes[13_000 + SLICE_US] == [] and sizes[16_000 + SLICE_US] == []
+    delay = 2 * 500  # twice the track step (500 µs) = SLICE_US here
+    assert sizes[13_000 + delay] == [] and sizes[16_000 + delay] == []
+    assert sum(v == [] for v in sizes.values()) == 2
 
 
 def test_spin_series_and_axis(written):
