@@ -14,14 +14,13 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pytest
+import rerun as rr
 from rerun.chunk import RrdReader
 
 from capture import review
 from capture.events import make_events, make_triggers
 from capture.session import SessionError, create_session, open_session
 from detect.track import Track
-
-import rerun as rr
 
 SLICE_US = 1000
 CAP = 500
