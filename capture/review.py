@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import queue
 import sys
 import threading
@@ -365,20 +364,31 @@ class _Logger:
         self.stats.n_events_logged += len(kept)
 
     # track and spin --------------------------------------------------------------------------
-    def track(self, track: Track, frame_mapping=None) -> None:
-        """Ball circle per track row; the circle is cleared one slice after each flight's end."""
+    def track(self, track: Track, *, clear_after_flights: bool = True) -> None:
+        """Ball circle per track row.
+
+        With ``clear_after_flights`` (offline, where flights are complete) the circle is
+        cleared ``max(slice_us, 2 * median track step)`` after each flight's last row,
+        unless the track has a row before then.
+        """
         if len(track) == 0:
             return
         c = np.c_[track.cx, track.cy] + PIXEL_OFFSET
         self.rec.send_columns(EVENTS_BALL, indexes=[_time_column(track.t_us)],
                               columns=rr.Ellipses2D.columns(centers=c, half_sizes=np.c_[track.r, track.r]))
-        ends = np.array([track.t_us[track.flight == f][-1] for f in track.flight_ids()], np.int64)
-        ends = ends[~np.isin(ends + self.slice_us, track.t_us)]
-        if len(ends):
-            self.rec.send_columns(EVENTS_BALL, indexes=[_time_column(ends + self.slice_us)],
-                                  columns=rr.Ellipses2D.columns(half_sizes=np.zeros((0, 2)))
-                                  .partition(np.zeros(len(ends), np.int64)))
         self.stats.n_track_rows += len(track)
+        if not clear_after_flights:
+            return
+        step = np.diff(track.t_us)
+        delay = max(self.slice_us, 2 * int(np.median(step)) if len(step) else 0)
+        ends = np.array([track.t_us[track.flight == f][-1] for f in track.flight_ids()], np.int64)
+        after = np.searchsorted(track.t_us, ends, side="right")
+        next_t = np.r_[track.t_us, np.iinfo(np.int64).max][after]
+        clear_t = (ends + delay)[next_t > ends + delay]
+        if len(clear_t):
+            self.rec.send_columns(EVENTS_BALL, indexes=[_time_column(clear_t)],
+                                  columns=rr.Ellipses2D.columns(half_sizes=np.zeros((0, 2)))
+                                  .partition(np.zeros(len(clear_t), np.int64)))
 
     def spin(self, cols: Mapping[str, np.ndarray], track: Track | None = None) -> None:
         """Spin estimates at their window centre: time series, 3D axis arrow, 2D projected axis."""
@@ -758,7 +768,7 @@ class LiveReview:
             lg.events(payload)
         elif kind == "track":
             rows = _as_track(payload)
-            lg.track(rows)
+            lg.track(rows, clear_after_flights=False)
             both = Track(**{k: np.r_[getattr(self._track, k), getattr(rows, k)] for k in TRACK_FIELDS})
             self._track = both.select(slice(-4096, None))
         elif kind == "spin":

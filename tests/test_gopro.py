@@ -200,3 +200,14 @@ def test_missing_and_bad_video_files(tmp_path):
         read_video(bad)
     with pytest.raises(FileNotFoundError, match="simulated video not found"):
         FakeGoPro(tmp_path / "missing.mp4")
+
+
+def test_cli_download_last_from_fake_and_unreachable(clip, tmp_path, capsys):
+    from capture.gopro.__main__ import main
+    assert main(["--fake", str(clip), "download", "--last", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out == [str(tmp_path / "out" / "GX010001.MP4")]
+    assert (tmp_path / "out" / "GX010001.MP4").read_bytes() == clip.read_bytes()
+    assert main(["--host", "127.0.0.1", "--port", str(_closed_port()), "state"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: GoPro at 127.0.0.1:") and "unreachable" in err and err.count("\n") == 1

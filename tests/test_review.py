@@ -14,14 +14,13 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pytest
+import rerun as rr
 from rerun.chunk import RrdReader
 
 from capture import review
 from capture.events import make_events, make_triggers
 from capture.session import SessionError, create_session, open_session
 from detect.track import Track
-
-import rerun as rr
 
 SLICE_US = 1000
 CAP = 500
@@ -64,7 +63,30 @@ def _image(i: int) -> np.ndarray:
     return np.stack([xx * 7, yy * 9, np.full_like(xx, 60 * i)], axis=-1).astype(np.uint8)
 
 
+def _ffmpeg() -> str | None:
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        return None
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def _write_video(path: Path, codec: str) -> None:
+    """The three test images as an MP4: ``mp4v`` with OpenCV, ``h264`` with imageio-ffmpeg's ffmpeg."""
+    if codec == "h264":
+        frames = np.stack([_image(i) for i in range(3)])
+        subprocess.run([_ffmpeg(), "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+                        "-s", "32x24", "-r", "30", "-i", "-", "-c:v", "libx264", "-pix_fmt", "yuv420p",
+                        str(path)], input=frames.tobytes(), check=True, timeout=60)
+        return
+    video = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 30, (32, 24))
+    for i in range(3):
+        video.write(cv2.cvtColor(_image(i), cv2.COLOR_RGB2BGR))
+    video.release()
+
+
 def _make_session(path: Path, *, frames: str = "images") -> Path:
+    """A small session; ``frames`` is "images", "none", or a video codec ("mp4v", "h264")."""
     with create_session(path, width=64, height=48,
                         attrs={"calibration": {"homography_frame_from_event": H_FRAME_FROM_EVENT}}) as w:
         w.append_events(_events())
@@ -73,11 +95,8 @@ def _make_session(path: Path, *, frames: str = "images") -> Path:
         w.write_spin(SPIN)
         if frames == "images":
             w.append_frames(FRAME_T, np.stack([_image(i) for i in range(3)]))
-        elif frames == "video":
-            video = cv2.VideoWriter(str(path / "gopro.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (32, 24))
-            for i in range(3):
-                video.write(cv2.cvtColor(_image(i), cv2.COLOR_RGB2BGR))
-            video.release()
+        elif frames != "none":
+            _write_video(path / "gopro.mp4", frames)
             w.set_video("gopro.mp4", FRAME_T)
     return path
 
@@ -181,7 +200,9 @@ def test_ball_circle_follows_track_and_clears_after_flight(written):
         t = int(track.t_us[i])
         np.testing.assert_allclose(centers[t][0], [track.cx[i] + 0.5, track.cy[i] + 0.5], rtol=1e-6)
         np.testing.assert_allclose(sizes[t][0], [track.r[i], track.r[i]])
-    assert sizes[13_000 + SLICE_US] == [] and sizes[16_000 + SLICE_US] == []
+    delay = 2 * 500  # twice the track step (500 µs) = SLICE_US here
+    assert sizes[13_000 + delay] == [] and sizes[16_000 + delay] == []
+    assert sum(v == [] for v in sizes.values()) == 2
 
 
 def test_spin_series_and_axis(written):
@@ -231,12 +252,26 @@ def test_streaming_batch_size_does_not_change_result(written, tmp_path):
 # The MP4 inside the session directory makes Zarr warn when it consolidates the metadata.
 @pytest.mark.filterwarnings("ignore:Object at gopro.mp4 is not recognized")
 def test_video_that_rerun_cannot_decode_falls_back_to_images(tmp_path):
-    session = _make_session(tmp_path / "session", frames="video")
+    session = _make_session(tmp_path / "session", frames="mp4v")
     stats = review.write_rrd(session, tmp_path / "v.rrd", progress=False)
     data = read_rrd(tmp_path / "v.rrd")
     assert [t for t, _ in _temporal(data["/frames/image"]["EncodedImage:blob"])] == list(FRAME_T)
     assert stats.n_frames == 3
     assert any("not embedded" in text for text in _texts(data))
+
+
+@pytest.mark.filterwarnings("ignore:Object at gopro.mp4 is not recognized")
+def test_h264_video_is_embedded_and_referenced(tmp_path):
+    if _ffmpeg() is None:
+        pytest.skip("imageio-ffmpeg (an H.264 encoder) is not installed")
+    session = _make_session(tmp_path / "session", frames="h264")
+    stats = review.write_rrd(session, tmp_path / "v.rrd", progress=False)
+    data = read_rrd(tmp_path / "v.rrd")
+    refs = _temporal(data["/frames/image"]["VideoFrameReference:timestamp"])
+    assert [t for t, _ in refs] == list(FRAME_T) and stats.n_frames == 3
+    assert [v for _, v in refs] == [[0], [33_333_333], [66_666_667]]  # the MP4's own frame times, ns
+    assert len(data["/video/asset"]["AssetVideo:blob"]) == 1
+    assert bytes(data["/video/asset"]["AssetVideo:blob"][0][1][0]) == (session / "gopro.mp4").read_bytes()
 
 
 def test_bad_inputs_give_clear_errors(tmp_path):

@@ -179,6 +179,7 @@ def write_test_video(path, frames, fps: float) -> Path:
         Frame rate written to the container.
     """
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     writer = None
     try:
         for img in frames:

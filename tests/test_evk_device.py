@@ -1,0 +1,179 @@
+"""Discovery, open-time errors and settings (biases, ROI, ERC, trigger) through the fake."""
+
+import pytest
+
+from capture import evk
+from capture.evk.fake import FakeEVK
+from capture.evk.treuzell import PROP_DEVICE_STREAM
+
+
+def opened(**kw):
+    fake = FakeEVK(None, **kw)
+    return fake, evk.open(backend=fake)
+
+
+def test_list_devices_reports_serial_board_sensor():
+    (info,) = evk.list_devices(backend=FakeEVK(None, serial=0x1234ABCD))
+    assert (info.serial, info.board, info.sensor, info.width, info.height) == ("1234abcd", "EVK4", "IMX636", 1280, 720)
+    assert info.firmware == "3.9.0" and info.error is None
+    (info,) = evk.list_devices(backend=FakeEVK(None, sensor="gen31"))
+    assert (info.board, info.sensor, info.width) == ("EVK3", "Gen3.1", 640)
+
+
+def test_open_by_serial():
+    fake = FakeEVK(None, serial=0xABC)
+    with evk.open("00000abc", backend=fake) as cam:
+        assert cam.info.serial == "00000abc"
+    with pytest.raises(evk.EvkNotFoundError, match="no EVK with serial 0000dead"):
+        evk.open("0000dead", backend=FakeEVK(None, serial=0xABC))
+
+
+def test_no_device():
+    fake = FakeEVK(None)
+    fake.unplug()
+    with pytest.raises(evk.EvkNotFoundError, match="no Prophesee EVK found"):
+        evk.open(backend=fake)
+
+
+def test_permission_denied_names_the_udev_rule():
+    with pytest.raises(evk.EvkPermissionError, match="permission denied") as exc:
+        evk.open(backend=FakeEVK(None, permission_denied=True))
+    assert evk.UDEV_RULE in str(exc.value) and "\n" not in str(exc.value)
+    (info,) = evk.list_devices(backend=FakeEVK(None, permission_denied=True))
+    assert info.serial is None and evk.UDEV_RULE in info.error
+
+
+def test_busy():
+    with pytest.raises(evk.EvkBusyError, match="camera is busy"):
+        evk.open(backend=FakeEVK(None, busy=True))
+
+
+def test_old_firmware_is_refused_and_released():
+    fake = FakeEVK(None, firmware_version=0x030703)
+    with pytest.raises(evk.EvkFirmwareError, match=r"firmware 3\.7\.3 is no longer supported \(need >= 3\.8\.0\)"):
+        evk.open(backend=fake)
+    assert ("usb", "release", 0) in fake.log
+    assert not fake.register_log()  # no register touched
+    with evk.open(backend=FakeEVK(None, firmware_version=0x030800)) as cam:
+        assert cam.info.firmware == "3.8.0"
+
+
+@pytest.mark.parametrize("registers, message", [({0x14: 0xA0301003}, "no supported sensor"),
+                                                 ({0xF128: 0x2}, "no supported sensor")])
+def test_sensor_identity_checks(registers, message):
+    with pytest.raises(evk.EvkError, match=message):
+        evk.open(backend=FakeEVK(None, registers=registers))
+
+
+def test_gen31_wrong_fpga_id():
+    with pytest.raises(evk.EvkError, match="wrong FPGA system ID 0x1C"):
+        evk.open(backend=FakeEVK(None, sensor="gen31", registers={0x800: 0x1C}))
+
+
+def test_streamer_devices_started_after_init_and_stopped_at_close():
+    fake, cam = opened(extra_devices=[("treuzell,streamer", "dma")])
+    assert fake.device_flags[(PROP_DEVICE_STREAM, 1)] == 1
+    cam.close()
+    assert fake.device_flags[(PROP_DEVICE_STREAM, 1)] == 0
+
+
+def test_imx636_biases_are_offsets_from_factory_trim():
+    fake, cam = opened()
+    trim_fo = fake.reset_registers[0x1004] & 0xFF
+    cam.set_biases(bias_fo=10, diff_on=-20)
+    assert fake.registers[0x1004] == 0x11A10000 | (trim_fo + 10)
+    assert fake.registers[0x1010] == 0x11A10000 | ((fake.reset_registers[0x1010] & 0xFF) - 20)
+    assert cam.get_biases()["bias_fo"] == 10 and cam.get_biases()["bias_diff_on"] == -20
+    n = len(fake.log)
+    with pytest.raises(evk.BiasRangeError, match=r"bias_fo offset 56 is outside the IMX636's recommended range -35\.\.55"):
+        cam.set_biases(bias_hpf=5, bias_fo=56)
+    with pytest.raises(evk.BiasRangeError, match="unknown bias 'bias_pr'"):
+        cam.set_biases(bias_pr=0)
+    assert len(fake.log) == n  # nothing written when any value is rejected
+    cam.close()
+
+
+def test_gen41_absolute_biases_and_constraints():
+    fake, cam = opened(sensor="gen41")
+    cam.set_biases(bias_fo=0x50)
+    assert fake.registers[0x1004] == 0x11A10050
+    with pytest.raises(evk.BiasRangeError, match="bias_diff_on >= bias_diff \\+ 15"):
+        cam.set_biases(bias_diff_on=0x50 + 14)
+    with pytest.raises(evk.BiasRangeError, match=r"0\.\.120"):
+        cam.set_biases(bias_hpf=121)
+    cam.close()
+
+
+def test_gen31_biases_range_checked_then_refused():
+    _, cam = opened(sensor="gen31")
+    with pytest.raises(evk.BiasRangeError, match=r"bias_diff = 500 mV is outside .* 200\.\.400 mV"):
+        cam.set_biases(bias_diff=500)
+    with pytest.raises(evk.EvkError, match="calibration tables"):
+        cam.set_biases(bias_diff=300)
+    cam.close()
+
+
+def enabled_lines(regs, base, n_lines, inverted):
+    out = []
+    for k in range(n_lines):
+        bit = (regs.get(base + 4 * (k // 32), 0) >> (k % 32)) & 1
+        if bit != inverted:
+            out.append(k)
+    return out
+
+
+def test_imx636_roi_line_bitmaps():
+    fake, cam = opened()
+    cam.set_roi(100, 50, 200, 100)
+    assert enabled_lines(fake.registers, 0x2000, 1280, True) == list(range(100, 300))
+    assert enabled_lines(fake.registers, 0x4000, 720, True) == list(range(50, 150))
+    assert fake.registers[0x4058] >> 16 == 0xFFFF
+    assert fake.registers[0x0004] & 0b1000110 == 0b1000010 and fake.registers[0x0004] & (1 << 10)
+    cam.set_roi()
+    assert enabled_lines(fake.registers, 0x2000, 1280, True) == list(range(1280))
+    assert enabled_lines(fake.registers, 0x4000, 720, True) == list(range(720))
+    assert not fake.registers[0x0004] & 0b10
+    with pytest.raises(ValueError, match="does not fit the IMX636's 1280x720"):
+        cam.set_roi(1200, 0, 100, 10)
+    cam.close()
+
+
+def test_gen31_roi_is_not_inverted():
+    fake, cam = opened(sensor="gen31")
+    cam.set_roi(0, 0, 33, 480)
+    assert enabled_lines(fake.registers, 0x400, 640, False) == list(range(33))
+    assert enabled_lines(fake.registers, 0x500, 480, False) == list(range(480))
+    cam.close()
+
+
+def test_erc_rate_cap():
+    fake, cam = opened()
+    cam.set_erc(20e6)
+    assert fake.registers[0x600C] == 4000 and fake.registers[0x6050] & 1  # 20 Mev/s * 200 µs
+    cam.set_erc(None)
+    assert not fake.registers[0x6050] & 1
+    with pytest.raises(ValueError, match=r"max_event_rate_ev_s=4000000000.0 is outside 0..3200000000 ev/s"):
+        cam.set_erc(4e9)
+    cam.close()
+    fake, cam = opened(sensor="gen31")
+    cam.set_erc(1e6)  # noise filter: 1000 kev/s over 1023 µs
+    assert fake.registers[0x24C] & 0x3FFF == 1023 and fake.registers[0x248] & 1
+    cam.start()  # the start sequence turns the filter off; the driver turns it back on
+    assert fake.registers[0x248] & 1
+    cam.close()
+
+
+def test_trigger_in():
+    fake, cam = opened()
+    assert fake.registers[0x7004] == 0xC1FF
+    cam.enable_trigger_in()
+    assert fake.registers[0x7004] == 0xC5FF  # ND's whole-word value with enable
+    cam.enable_trigger_in(False)
+    assert fake.registers[0x7004] == 0xC1FF
+    with pytest.raises(ValueError, match="channel 0 only"):
+        cam.enable_trigger_in(channel=1)
+    cam.close()
+    fake, cam = opened(sensor="gen41")
+    cam.enable_trigger_in()
+    assert fake.registers[0x7004] & (1 << 10) and (fake.registers.get(0x44, 0) >> 12) & 0xF == 0xF
+    cam.close()

@@ -1,0 +1,156 @@
+"""Streaming real RAW recordings through the fake EVK: byte-identical RAW output, identical
+decoded events, pacing, stop conditions, and faults (idle timeouts, stall, unplug, queue
+overflow, lost data) with everything received before a fault kept on disk."""
+
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from capture import evk, raw
+from capture.evk.fake import FakeEVK
+
+ROS = "ros_codecs_evt3_trigger_1280x720.raw"
+SAMPLE = "expelliarmus_evt3_sample_1280x720.raw"
+
+
+def payload_of(path) -> bytes:
+    data = open(path, "rb").read()
+    _, size = raw.parse_header(data)
+    return data[size:]
+
+
+def record_fake(tmp_path, src, *, decode=True, camera_attrs=None, **fake_kw):
+    fake = FakeEVK(src, **fake_kw)
+    batches = []
+    out = tmp_path / "rec.raw"
+    with evk.open(backend=fake) as cam:
+        for k, v in (camera_attrs or {}).items():
+            setattr(cam, k, v)
+        stats = evk.record(cam, out, on_batch=(lambda e, t: batches.append((e, t))) if decode else None)
+    return fake, stats, out, batches
+
+
+@pytest.fixture(scope="module")
+def ros_chunks(shared_raw_dir):
+    return json.loads((shared_raw_dir / "expected.json").read_text())["files"][ROS]["chunk_sizes_bytes"]
+
+
+def test_recorded_packets_give_identical_bytes_and_events(tmp_path, shared_raw_dir, ros_chunks):
+    src = shared_raw_dir / ROS
+    fake, stats, out, batches = record_fake(tmp_path, src, packet_bytes=ros_chunks)
+    assert payload_of(out) == payload_of(src)
+    assert stats.payload_bytes == len(payload_of(src)) and stats.stop_reason == "end_of_stream"
+    ref = raw.read(src)
+    rec = raw.read(out)
+    assert (rec.width, rec.height, rec.format) == (1280, 720, "EVT3")
+    assert rec.header["fields"]["serial_number"] == "a1b2c3d4"
+    live_events = np.concatenate([e for e, _ in batches])
+    live_triggers = np.concatenate([t for _, t in batches])
+    assert np.array_equal(rec.events, ref.events) and np.array_equal(live_events, ref.events)
+    assert np.array_equal(live_triggers, ref.triggers) and len(ref.triggers) == 2
+    assert stats.n_events == len(ref.events) == 82469
+    assert stats.lossless and stats.dropped_bytes == 0 and stats.time_jumps == 0
+    # Packets that are not a multiple of 1024 bytes end in a short USB packet: one per read.
+    assert stats.n_reads == sum(1 for c in ros_chunks if c % 1024)
+
+
+def test_large_fixed_packets_raw_only(tmp_path, shared_raw_dir):
+    src = shared_raw_dir / SAMPLE
+    _, stats, out, batches = record_fake(tmp_path, src, decode=False, packet_bytes=16384)
+    assert payload_of(out) == payload_of(src) and not batches and stats.n_events == 0
+    assert np.array_equal(raw.read(out).events, raw.read(src).events)
+    assert stats.n_reads < len(payload_of(src)) // 16384  # 16 KiB packets end in full USB packets: reads merge them
+
+
+def test_recorded_pace_follows_event_time(tmp_path, shared_raw_dir, ros_chunks):
+    src = shared_raw_dir / ROS
+    _, stats, out, _ = record_fake(tmp_path, src, decode=False, pace="recorded", speed=10.0,
+                                   packet_bytes=ros_chunks)
+    span_s = (15476187 - 14224870) / 1e6
+    assert stats.duration_s >= 0.8 * span_s / 10.0
+    assert payload_of(out) == payload_of(src)
+
+
+def test_max_duration_and_stop_event_keep_a_decodable_prefix(tmp_path, shared_raw_dir, ros_chunks):
+    src = shared_raw_dir / ROS
+    ref = raw.read(src)
+    with evk.open(backend=FakeEVK(src, pace="recorded", speed=1.0, packet_bytes=ros_chunks)) as cam:
+        stats = evk.record(cam, tmp_path / "a.raw", max_duration_s=0.3)
+    assert stats.stop_reason == "duration" and 0 < stats.payload_bytes < len(payload_of(src))
+    assert payload_of(tmp_path / "a.raw") == payload_of(src)[: stats.payload_bytes]
+    part = raw.read(tmp_path / "a.raw").events
+    assert len(part) and np.array_equal(part, ref.events[: len(part)])
+
+    stop = threading.Event()
+    with evk.open(backend=FakeEVK(src, packet_bytes=ros_chunks)) as cam:
+        stats = evk.record(cam, tmp_path / "b.raw", stop=stop, on_batch=lambda e, t: stop.set())
+    assert stats.stop_reason == "stop"
+    assert payload_of(tmp_path / "b.raw") == payload_of(src)[: stats.payload_bytes]
+
+
+def test_idle_timeouts_are_not_errors(tmp_path, shared_raw_dir):
+    src = shared_raw_dir / SAMPLE
+    _, stats, out, _ = record_fake(tmp_path, src, decode=False, packet_bytes=8192,
+                                   pause_after_bytes=(200_000, 0.35))
+    assert stats.n_timeouts >= 3 and stats.stop_reason == "end_of_stream"
+    assert payload_of(out) == payload_of(src)
+
+
+@pytest.mark.parametrize("fault, exc, message", [
+    ("stall_after_bytes", evk.EvkStallError, "endpoint stalled"),
+    ("disconnect_after_bytes", evk.EvkDisconnectedError, "camera disconnected"),
+])
+def test_faults_mid_stream_keep_received_data(tmp_path, shared_raw_dir, ros_chunks, fault, exc, message):
+    src = shared_raw_dir / ROS
+    at = 300_004
+    fake = FakeEVK(src, packet_bytes=ros_chunks, **{fault: at})
+    got = []
+    cam = evk.open(backend=fake)
+    with pytest.raises(exc, match=message + r".*the 300004 bytes received before it are kept in .*rec\.raw") as err:
+        evk.record(cam, tmp_path / "rec.raw", on_batch=lambda e, t: got.append(e))
+    cam.close()  # after an unplug the destroy sequence fails: logged, not raised
+    stats = err.value.stats
+    assert stats.payload_bytes == at and stats.stop_reason == "error"
+    assert payload_of(tmp_path / "rec.raw") == payload_of(src)[:at]
+    on_disk = raw.read(tmp_path / "rec.raw").events
+    assert np.array_equal(np.concatenate(got), on_disk)
+    assert np.array_equal(on_disk, raw.read(src).events[: len(on_disk)]) and len(on_disk) > 30000
+
+
+def test_queue_overflow_is_counted_and_located(tmp_path, shared_raw_dir):
+    src = shared_raw_dir / SAMPLE
+    original = payload_of(src)
+
+    def slow(events, triggers):
+        threading.Event().wait(0.01)
+
+    fake = FakeEVK(src, packet_bytes=8192)
+    with evk.open(backend=fake) as cam:
+        cam.queue_bytes = 32768
+        stats = evk.record(cam, tmp_path / "rec.raw", on_batch=slow)
+    assert stats.dropped_bytes > 0 and stats.overflows > 0 and not stats.lossless
+    assert sum(n for _, n in stats.gaps) == stats.dropped_bytes
+    assert stats.payload_bytes + stats.dropped_bytes == len(original)
+    written = payload_of(tmp_path / "rec.raw")
+    rebuilt, pos, src_pos = [], 0, 0
+    for offset, n in stats.gaps:  # the file is the original minus the reported gaps
+        rebuilt.append(original[src_pos:src_pos + offset - pos])
+        src_pos += offset - pos + n
+        pos = offset
+    rebuilt.append(original[src_pos:])
+    assert b"".join(rebuilt) == written
+
+
+def test_lost_data_shows_as_time_base_jump(tmp_path, shared_raw_dir):
+    src = shared_raw_dir / ROS
+    data = open(src, "rb").read()
+    _, size = raw.parse_header(data)
+    cut = data[:size] + data[size:size + 200_000] + data[size + 400_000:]  # 200 kB lost on the "link"
+    damaged = tmp_path / "damaged.raw"
+    damaged.write_bytes(cut)
+    _, stats, _, _ = record_fake(tmp_path, damaged, decode=False)
+    assert stats.time_jumps >= 1 and not stats.lossless
+    _, clean, _, _ = record_fake(tmp_path, src, decode=False)
+    assert clean.time_jumps == 0
