@@ -141,34 +141,27 @@ def circle_at(track: Track, t_us) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return out[0], out[1], out[2], valid
 
 
-def homography_mapping(attrs: Mapping) -> Callable[[np.ndarray], np.ndarray] | None:
-    """Event-pixel -> frame-pixel mapping from ``attrs["calibration"]["homography_frame_from_event"]``.
+def circle_mapping(attrs: Mapping) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Event-sensor circles -> frame circles, ``(N, 3) -> (N, 3)`` px, from the session's calibration.
 
-    The homography is a 3x3 matrix (nested lists) mapping homogeneous event pixels
-    ``(x, y, 1)`` to frame pixels. Returns None when the session has no such entry.
+    Uses ``attrs["calibration"]`` (a :class:`calib.stereo.CameraPair` dict: stereo model
+    or homography). Returns None when the session has no calibration.
     """
+    from calib.stereo import CameraPair
+
     calib = attrs.get("calibration")
-    if not isinstance(calib, Mapping) or calib.get("homography_frame_from_event") is None:
+    if not isinstance(calib, Mapping):
         return None
-    H = np.asarray(calib["homography_frame_from_event"], dtype=np.float64)
-    if H.shape != (3, 3):
-        raise ReviewError(f"calibration.homography_frame_from_event must be 3x3, got shape {H.shape}")
-
-    def event_to_frame(xy: np.ndarray) -> np.ndarray:
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        h = np.c_[xy, np.ones(len(xy))] @ H.T
-        return h[:, :2] / h[:, 2:3]
-
-    return event_to_frame
+    pair = CameraPair.from_dict(calib)
+    if pair.homography is None and pair.extrinsics is None:
+        return None
+    return pair.event_to_frame
 
 
 def _map_circles(event_to_frame, cx, cy, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Map circles through a point mapping: centre mapped, radius = mean distance to two mapped rim points."""
-    c = event_to_frame(np.c_[cx, cy])
-    rim_x = event_to_frame(np.c_[cx + r, cy])
-    rim_y = event_to_frame(np.c_[cx, cy + r])
-    radius = 0.5 * (np.linalg.norm(rim_x - c, axis=1) + np.linalg.norm(rim_y - c, axis=1))
-    return c[:, 0], c[:, 1], radius
+    """Map circles (px) through a circle mapping ``(N, 3) -> (N, 3)``."""
+    out = np.asarray(event_to_frame(np.c_[cx, cy, r]), dtype=np.float64).reshape(-1, 3)
+    return out[:, 0], out[:, 1], out[:, 2]
 
 
 def spin_columns(spin) -> dict[str, np.ndarray]:
@@ -545,8 +538,8 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     batch_events : int
         Events read from the store per step (bounds memory).
     event_to_frame : callable, optional
-        Maps event pixels (N, 2) to frame pixels (N, 2), to draw the ball circle on the
-        frames; default: the session's ``calibration.homography_frame_from_event`` if any.
+        Maps event-sensor circles (N, 3) to frame circles (N, 3), px, to draw the ball on
+        the frames; default: from the session's ``calibration`` (:func:`circle_mapping`).
     jpeg_quality : int
         JPEG quality of logged frame images.
     video_max_bytes : int
@@ -591,7 +584,7 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
         track = Track.from_columns(session.track())
         lg.track(track)
         lg.spin(session.spin(), track)
-        mapping = event_to_frame or homography_mapping(session.attrs)
+        mapping = event_to_frame or circle_mapping(session.attrs)
         if frames["video"] is not None:
             _log_video(lg, session, frames["video"], frames["t_us"], video_max_bytes=video_max_bytes,
                        jpeg_quality=jpeg_quality, frame_stride=max(1, int(frame_stride)))
@@ -639,7 +632,7 @@ class LiveReview:
     max_queue : int
         Items waiting for the logging thread before new ones are skipped.
     event_to_frame : callable, optional
-        Event pixel -> frame pixel mapping (N, 2) -> (N, 2) for the circle on frames.
+        Event-sensor circles (N, 3) -> frame circles (N, 3), px, for the circle on frames.
     grpc_port : int, optional
         Port for ``serve`` / ``spawn``.
     """

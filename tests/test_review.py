@@ -88,7 +88,7 @@ def _write_video(path: Path, codec: str) -> None:
 def _make_session(path: Path, *, frames: str = "images") -> Path:
     """A small session; ``frames`` is "images", "none", or a video codec ("mp4v", "h264")."""
     with create_session(path, width=64, height=48,
-                        attrs={"calibration": {"homography_frame_from_event": H_FRAME_FROM_EVENT}}) as w:
+                        attrs={"calibration": {"homography": np.linalg.inv(H_FRAME_FROM_EVENT).tolist()}}) as w:
         w.append_events(_events())
         w.append_triggers(make_triggers([10_100, 15_100], [0, 0], [1, 0]))
         w.write_track(_track())
