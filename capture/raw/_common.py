@@ -23,9 +23,10 @@ STAT_KEYS = (
     "others",                    # OTHERS / CONTINUED / IMU words (no CD events)
     "unknown_words",             # words of an undefined type (ignored)
     "trailing_bytes",            # bytes of an incomplete word at the end of the stream (damage)
+    "incomplete_group_words",    # EVT3: words of a vector triplet cut off by the end of the stream
 )
 DAMAGE_KEYS = ("events_without_y", "vectors_without_base", "events_out_of_bounds",
-               "time_backward", "unknown_words", "trailing_bytes")
+               "time_backward", "unknown_words", "trailing_bytes", "incomplete_group_words")
 """Counters that indicate damaged or foreign input."""
 
 
@@ -48,6 +49,7 @@ class DecoderState:
     base_pol: int = 0              # EVT3: vector polarity
     first_th: int | None = None    # first TIME_HIGH payload (for Metavision's time shift)
     words_seen: int = 0            # words consumed so far (for damage offsets)
+    last_words: tuple = ()         # EVT3: the stream's last (up to 3) words, to spot a cut-off triplet
     first_damage_word: int | None = None
     stats: dict = field(default_factory=lambda: dict.fromkeys(STAT_KEYS, 0))
 

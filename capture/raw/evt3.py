@@ -94,6 +94,8 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     w0 = st.words_seen
     st.words_seen += len(w)
     st.stats["words"] += len(w)
+    if len(w):
+        st.last_words = (st.last_words + tuple(int(v) for v in w[-3:]))[-3:]
     if not st.started:
         hits = np.flatnonzero((w >> 12) == _TIME_HIGH)
         if len(hits) == 0:
@@ -228,6 +230,15 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     ev = drop_out_of_bounds(ev, st, lambda i: w0 + int(epos[np.searchsorted(ends, i, side="right")]))
     st.stats["events"] += len(ev)
     return ev, triggers
+
+
+def finish(st: DecoderState) -> None:
+    """End of stream: count a vector triplet cut short (``VECT_BASE_X [VECT_12 [VECT_12]]``) as damage."""
+    types = [v >> 12 for v in st.last_words]
+    for k in (3, 2, 1):
+        if types[-k:] == [_VECT_BASE_X, _VECT_12, _VECT_12][:k] and len(types) >= k:
+            st.damage("incomplete_group_words", k, st.words_seen - k)
+            return
 
 
 def _count_bad_y(y_e, y_ok, cnt, epos, w0, st: DecoderState) -> None:

@@ -134,7 +134,9 @@ class StreamDecoder:
         return events, triggers
 
     def finish(self) -> None:
-        """End of stream: count the bytes of an incomplete last word as damage."""
+        """End of stream: count an incomplete last word (and EVT3 vector triplet) as damage."""
+        if self.format == "EVT3":
+            evt3.finish(self._state)
         if self._tail:
             self._state.damage("trailing_bytes", len(self._tail), self._state.words_seen)
             self._tail = b""
