@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, drop_out_of_bounds,
-                                  make_events, triggers_from)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, in_bounds, make_events,
+                                  triggers_from)
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
@@ -31,46 +31,49 @@ _OTHER_TYPES = (0x7, 0xD, 0xE, 0xF)
 _UNKNOWN_TYPES = (0x1, 0x9, 0xB, 0xC)
 
 
-def _time_table(typ, pay, st: DecoderState, w0: int):
-    """Times (µs) after each TIME_LOW / TIME_HIGH word, and those words' positions.
+def _time_table(is_th, is_tl, pay, st: DecoderState, w0: int):
+    """Time (µs) in force after each TIME_LOW / TIME_HIGH word of the batch.
 
-    Returns ``(tpos, t_after)``: ``t_after[i]`` is the time in force right after word
-    ``tpos[i]``. Updates the time part of ``st`` and the time statistics.
+    Returns ``t_table`` with ``t_table[0]`` = the time before the batch and ``t_table[k]`` =
+    the time after the k-th time word. Updates the time part of ``st`` and its statistics.
     """
-    is_th = typ == _TIME_HIGH
-    tpos = np.flatnonzero(is_th | (typ == _TIME_LOW))
-    tth = is_th[tpos]
-    tpay = pay[tpos].astype(np.int64)
-    thv = tpay[tth]
-    if len(thv):
+    tpos = np.flatnonzero(is_th | is_tl)
+    tth = is_th.take(tpos)
+    tpay = pay.take(tpos)
+    thk = np.flatnonzero(tth)                   # TIME_HIGH words among the time words
+    setter = ~tth                               # words that set time_low (TIME_LOW, changed TIME_HIGH)
+    high_table = np.empty(len(thk) + 1, np.int64)
+    high_table[0] = st.t_us >> 12
+    if len(thk):
+        thv = tpay.take(thk).astype(np.int64)
         step = np.diff(thv, prepend=st.th_raw)
         wrap = step < -(TIME_HIGH_WRAP // 2)
         loops = st.loops + np.cumsum(wrap)
-        high = thv + loops * TIME_HIGH_WRAP
+        np.add(thv, loops * TIME_HIGH_WRAP, out=high_table[1:])
         back = (step < 0) & ~wrap
         if back.any():
-            st.damage("time_backward", np.count_nonzero(back), w0 + int(tpos[tth][np.argmax(back)]))
+            st.damage("time_backward", np.count_nonzero(back), w0 + int(tpos[thk[np.argmax(back)]]))
         st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
         st.stats["time_loops"] += int(loops[-1] - st.loops)
+        st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
         # TIME_LOW resets to 0 when TIME_HIGH changes; a repeated TIME_HIGH keeps it.
-        setter = ~tth
-        setter[tth] = step != 0
-    else:
-        high = thv
-        setter = ~tth
-    high_ord = np.cumsum(tth) - 1
-    high_now = np.concatenate(([st.t_us >> 12], high))[high_ord + 1]
-    low_val = np.where(tth, 0, tpay)
-    low_ord = np.cumsum(setter) - 1
-    low_now = np.concatenate(([st.tl], low_val[setter]))[low_ord + 1]
-    t_after = (high_now << 12) | low_now
-    if len(thv):
-        st.th_raw = int(thv[-1])
-        st.loops = int(loops[-1])
-    if len(tpos):
-        st.t_us = int(t_after[-1])
-        st.tl = int(low_now[-1])
-    return tpos, t_after
+        setter[thk] = step != 0
+    low_sel = np.flatnonzero(setter)
+    low_table = np.empty(len(low_sel) + 1, np.int64)
+    low_table[0] = st.tl
+    low_table[1:] = tpay.take(low_sel)
+    low_table[1:][tth.take(low_sel)] = 0
+    t_table = np.empty(len(tpos) + 1, np.int64)
+    t_table[0] = st.t_us
+    np.left_shift(high_table.take(_index_before(tth)), 12, out=t_table[1:])
+    t_table[1:] |= low_table.take(_index_before(setter))
+    st.t_us, st.tl = int(t_table[-1]), int(t_table[-1] & 0xFFF)
+    return t_table
+
+
+def _index_before(mask: np.ndarray) -> np.ndarray:
+    """Inclusive running count of ``mask`` (int32 when it fits: much faster than int64)."""
+    return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -89,6 +92,12 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         CD events in stream order, t in µs (64-bit, unshifted).
     triggers : ndarray of TRIGGER_DTYPE
         External trigger events in stream order.
+
+    Notes
+    -----
+    The state in force at each word (time, y) is found with running counts of the words
+    that set it (``cumsum`` of a mask) used as indices into small per-batch tables; a
+    vector word's events are expanded with ``unpackbits`` of its mask.
     """
     w = words
     w0 = st.words_seen
@@ -97,11 +106,11 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     if len(w):
         st.last_words = (st.last_words + tuple(int(v) for v in w[-3:]))[-3:]
     if not st.started:
-        hits = np.flatnonzero((w >> 12) == _TIME_HIGH)
-        if len(hits) == 0:
+        is_th = (w >> 12) == _TIME_HIGH
+        skip = int(np.argmax(is_th)) if len(w) else 0
+        if len(w) == 0 or not is_th[skip]:
             st.stats["words_before_time_high"] += len(w)
             return EMPTY_EVENTS, EMPTY_TRIGGERS
-        skip = int(hits[0])
         st.stats["words_before_time_high"] += skip
         w = w[skip:]
         w0 += skip
@@ -109,83 +118,105 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         st.first_th = st.th_raw = int(w[0] & 0xFFF)
         st.t_us = st.th_raw << 12
         st.tl = 0
-    if len(w) == 0:
-        return EMPTY_EVENTS, EMPTY_TRIGGERS
     typ = w >> 12
-    counts = np.bincount(typ, minlength=16)
-    st.stats["others"] += int(counts[list(_OTHER_TYPES)].sum())
-    n_unknown = int(counts[list(_UNKNOWN_TYPES)].sum())
+    pay = w & 0x0FFF
+    is_y = typ == _ADDR_Y
+    is_x = typ == _ADDR_X
+    is_vec = (typ >> 1) == (_VECT_12 >> 1)          # VECT_12 or VECT_8
+    is_th = typ == _TIME_HIGH
+    is_tl = typ == _TIME_LOW
+    is_vb = typ == _VECT_BASE_X
+    is_tr = typ == _EXT_TRIGGER
+    n_y, n_x, n_vec, n_th, n_tl, n_vb, n_tr = (int(np.count_nonzero(m)) for m in
+                                               (is_y, is_x, is_vec, is_th, is_tl, is_vb, is_tr))
+    n_other = int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+    st.stats["others"] += n_other
+    n_unknown = len(w) - (n_y + n_x + n_vec + n_th + n_tl + n_vb + n_tr + n_other)
     if n_unknown:
         first = int(np.argmax(np.isin(typ, _UNKNOWN_TYPES)))
         st.damage("unknown_words", n_unknown, w0 + first)
-    pay = w & 0x0FFF
-    t_start = st.t_us
-    if counts[_TIME_LOW] or counts[_TIME_HIGH]:
-        tpos, t_after = _time_table(typ, pay, st, w0)
-        t_table = np.concatenate(([t_start], t_after))
-    else:
-        tpos, t_table = None, np.array([t_start], dtype=np.int64)
 
-    def times_at(pos):
-        if tpos is None:
-            return np.full(len(pos), t_start, dtype=np.int64)
-        return t_table[np.searchsorted(tpos, pos)]
+    t_table = _time_table(is_th, is_tl, pay, st, w0) if n_th + n_tl else np.array([st.t_us], np.int64)
+    y_table = np.empty(n_y + 1, np.uint16)
+    y_table[0] = st.y
+    if n_y:
+        y_table[1:] = pay.take(np.flatnonzero(is_y))
+        st.y = int(y_table[-1])
+
+    def state_at(pos):
+        """(t_us, y payload) in force at word positions ``pos``."""
+        t = t_table.take(_index_before(is_th | is_tl).take(pos)) if len(t_table) > 1 else \
+            np.full(len(pos), t_table[0])
+        y = y_table.take(_index_before(is_y).take(pos)) if n_y else np.full(len(pos), y_table[0], np.uint16)
+        return t, y
 
     triggers = EMPTY_TRIGGERS
-    if counts[_EXT_TRIGGER]:
-        tr = np.flatnonzero(typ == _EXT_TRIGGER)
+    if n_tr:
+        tr = np.flatnonzero(is_tr)
         tp = pay[tr]
-        triggers = triggers_from(times_at(tr), (tp >> 8) & 0xF, tp & 1)
+        triggers = triggers_from(state_at(tr)[0], (tp >> 8) & 0xF, tp & 1)
         st.stats["triggers"] += len(triggers)
 
-    n_vec = int(counts[_VECT_12] + counts[_VECT_8])
-    y_before = st.y
-    if counts[_ADDR_Y]:
-        ypos = np.flatnonzero(typ == _ADDR_Y)
-        y_table = np.concatenate((np.array([y_before], np.uint16), pay[ypos]))
-        st.y = int(y_table[-1])
-    else:
-        ypos, y_table = None, np.array([y_before], np.uint16)
     if n_vec == 0:
-        _update_vector_base(typ, pay, st, counts)
-        if counts[_ADDR_X] == 0:
+        if n_vb:
+            last = int(pay[np.flatnonzero(is_vb)[-1]])
+            st.base_x, st.base_pol = last & 0x7FF, last >> 11
+        if n_x == 0:
             return EMPTY_EVENTS, triggers
-    if n_vec:
-        epos = np.flatnonzero((typ == _ADDR_X) | ((typ >> 1) == (_VECT_12 >> 1)))
+        src = np.flatnonzero(is_x)               # the word that made each event
+        t, y = state_at(src)
+        ps = pay.take(src)
+        x = ps & 0x7FF
+        p = ps >> 11
     else:
-        epos = np.flatnonzero(typ == _ADDR_X)
-    pe = pay[epos]
-    t_e = times_at(epos)
-    y_e = y_table[np.searchsorted(ypos, epos)] if ypos is not None else np.full(len(epos), y_before, np.uint16)
-    y_ok = y_e < 2048
+        src, x, p, vec_events = _expand_vectors(typ, pay, is_x | is_vec, is_vb, n_vb, st, w0)
+        if len(src) == 0:
+            return EMPTY_EVENTS, triggers
+        t, y = state_at(src)
+    keep = None
+    if int(y.max()) >= 2048:                     # no ADDR_Y yet (0xFFFF) or another system's
+        keep = y < 2048
+        none = y == 0xFFFF
+        if none.any():
+            st.damage("events_without_y", np.count_nonzero(none), w0 + int(src[np.argmax(none)]))
+        st.stats["events_other_system"] += int(len(y) - np.count_nonzero(keep) - np.count_nonzero(none))
+        x = np.where(keep, x, 0)
+    if n_vec and vec_events is not None:
+        keep = vec_events if keep is None else keep & vec_events
+    bounds = in_bounds(x, y if keep is None else np.where(keep, y, 0), st, lambda i: w0 + int(src[i]))
+    if bounds is not None:
+        keep = bounds if keep is None else keep & bounds
+    ev = make_events(len(src))
+    ev["t"] = t
+    ev["x"] = x
+    ev["y"] = y
+    ev["p"] = p
+    if keep is not None:
+        ev = ev[keep]
+    st.stats["events"] += len(ev)
+    return ev, triggers
 
-    if n_vec == 0:
-        if not y_ok.all():
-            _count_bad_y(y_e, y_ok, np.ones(len(epos), np.int64), epos, w0, st)
-            epos, pe, t_e, y_e = epos[y_ok], pe[y_ok], t_e[y_ok], y_e[y_ok]
-        ev = make_events(len(epos))
-        ev["t"] = t_e
-        ev["x"] = pe & 0x7FF
-        ev["y"] = y_e
-        ev["p"] = pe >> 11
-        ev = drop_out_of_bounds(ev, st, lambda i: w0 + int(epos[i]))
-        st.stats["events"] += len(ev)
-        return ev, triggers
 
-    # Vectors: per vector word, its base x is the last VECT_BASE_X plus the widths of the
-    # vector words between it and this word (12 per VECT_12, 8 per VECT_8).
-    isv = (typ[epos] >> 1) == (_VECT_12 >> 1)
-    vsel = np.flatnonzero(isv)
-    vpos = epos[vsel]
-    is12 = typ[vpos] == _VECT_12
+def _expand_vectors(typ, pay, is_event, is_vb, n_vb, st: DecoderState, w0: int):
+    """Events of ADDR_X and vector words in stream order.
+
+    Returns ``(src, x, p, valid)``: the word position, x and polarity of every event, and a
+    mask that is False for events of vector words with no VECT_BASE_X yet (or None).
+    """
+    epos = np.flatnonzero(is_event)
+    etyp = typ.take(epos)
+    vsel = np.flatnonzero(etyp != _ADDR_X)       # vector words among the event words
+    vpos = epos.take(vsel)
+    is12 = etyp[vsel] == _VECT_12
     widths = np.where(is12, 12, 8)
     cw = np.cumsum(widths)
     cw_excl = cw - widths
     total = int(cw[-1])
-    vmask = pe[vsel]
-    vmask = np.where(is12, vmask, vmask & 0xFF)
-    if counts[_VECT_BASE_X]:
-        vbpos = np.flatnonzero(typ == _VECT_BASE_X)
+    vmask = pay.take(vpos)
+    vmask[~is12] &= 0xFF
+    # base x of each vector word: its VECT_BASE_X plus the widths of the vector words since
+    if n_vb:
+        vbpos = np.flatnonzero(is_vb)
         vbpay = pay[vbpos]
         jb = np.searchsorted(vbpos, vpos) - 1
         start_cw = np.concatenate((cw_excl, [total]))[np.searchsorted(vpos, vbpos)]
@@ -203,58 +234,37 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         no_base = np.full(len(vpos), st.base_x < 0)
         if st.base_x >= 0:
             st.base_x += total
-    base_e = (pe & 0x7FF).astype(np.int64)
-    base_e[vsel] = base
-    p_e = pe >> 11
-    p_e[vsel] = pol
+    n_v = np.bitwise_count(vmask).astype(np.int64)
     cnt = np.ones(len(epos), np.int64)
-    cnt[vsel] = np.bitwise_count(vmask)
-    if no_base.any():
-        lost = vsel[no_base]
-        st.damage("vectors_without_base", int(cnt[lost].sum()), w0 + int(vpos[no_base][0]))
-        cnt[lost] = 0
-        vmask[no_base] = 0
-    if not y_ok.all():
-        _count_bad_y(y_e, y_ok, cnt, epos, w0, st)
-        cnt[~y_ok] = 0
-        vmask[~y_ok[vsel]] = 0
-    ev = make_events(int(cnt.sum()))
-    ev["t"] = np.repeat(t_e, cnt)
-    ev["y"] = np.repeat(y_e, cnt)
-    ev["p"] = np.repeat(p_e, cnt)
-    xs = np.repeat(base_e, cnt)
+    cnt[vsel] = n_v
+    src = np.repeat(epos, cnt)
+    ps = pay.take(src)
+    x = (ps & 0x7FF).astype(np.int64)
+    p = ps >> 11
+    # where each vector word's events land in the output, and which bit each one is
+    extra = n_v - 1
+    out_first = vsel + np.cumsum(extra) - extra
     bits = np.unpackbits(vmask.astype("<u2").view(np.uint8).reshape(-1, 2), axis=1, bitorder="little")
-    xs[np.repeat(isv, cnt)] += np.nonzero(bits)[1]
-    ev["x"] = np.minimum(xs, 0xFFFF)
-    ends = np.cumsum(cnt)
-    ev = drop_out_of_bounds(ev, st, lambda i: w0 + int(epos[np.searchsorted(ends, i, side="right")]))
-    st.stats["events"] += len(ev)
-    return ev, triggers
+    flat = np.flatnonzero(bits.view(bool))
+    row, col = flat >> 4, flat & 15
+    at = out_first[row] + (np.arange(len(row)) - (np.cumsum(n_v) - n_v)[row])
+    x[at] = base[row] + col
+    p[at] = pol[row]
+    valid = None
+    if no_base.any():
+        valid = np.ones(len(src), bool)
+        valid[at[no_base[row]]] = False
+        st.damage("vectors_without_base", int(n_v[no_base].sum()), w0 + int(vpos[no_base][0]))
+    return src, np.minimum(x, 0xFFFF), p, valid
 
 
 def finish(st: DecoderState) -> None:
     """End of stream: count a vector triplet cut short (``VECT_BASE_X [VECT_12 [VECT_12]]``) as damage."""
     types = [v >> 12 for v in st.last_words]
     for k in (3, 2, 1):
-        if types[-k:] == [_VECT_BASE_X, _VECT_12, _VECT_12][:k] and len(types) >= k:
+        if len(types) >= k and types[-k:] == [_VECT_BASE_X, _VECT_12, _VECT_12][:k]:
             st.damage("incomplete_group_words", k, st.words_seen - k)
             return
-
-
-def _count_bad_y(y_e, y_ok, cnt, epos, w0, st: DecoderState) -> None:
-    """Count events dropped for a missing ADDR_Y (damage) or another system's ADDR_Y."""
-    none = y_e == 0xFFFF
-    if none.any():
-        st.damage("events_without_y", int(cnt[none].sum()), w0 + int(epos[np.argmax(none)]))
-    other = ~y_ok & ~none
-    st.stats["events_other_system"] += int(cnt[other].sum())
-
-
-def _update_vector_base(typ, pay, st: DecoderState, counts) -> None:
-    """Carry the vector base across a batch that has VECT_BASE_X words but no vectors."""
-    if counts[_VECT_BASE_X]:
-        last = int(pay[np.flatnonzero(typ == _VECT_BASE_X)[-1]])
-        st.base_x, st.base_pol = last & 0x7FF, last >> 11
 
 
 _MIN_VECTOR_EVENTS = 5
