@@ -31,15 +31,40 @@ _OTHER_TYPES = (0x7, 0xD, 0xE, 0xF)
 _UNKNOWN_TYPES = (0x1, 0x9, 0xB, 0xC)
 
 
-def _time_table(is_th, is_tl, pay, st: DecoderState, w0: int):
-    """Time (µs) in force after each TIME_LOW / TIME_HIGH word of the batch.
+def _select_table() -> np.ndarray:
+    """``table[m, k]``: index of the k-th set bit of the 12-bit mask ``m`` (uint8, 4096 x 12)."""
+    bits = np.unpackbits(np.arange(4096, dtype="<u2").view(np.uint8).reshape(-1, 2), axis=1,
+                         bitorder="little")[:, :12]
+    table = np.zeros((4096, 12), np.uint8)
+    rows, cols = np.nonzero(bits)
+    n_set = bits.sum(1, dtype=np.int64)
+    rank = np.arange(len(rows)) - np.repeat(np.cumsum(n_set) - n_set, n_set)
+    table[rows, rank] = cols
+    return table
 
-    Returns ``t_table`` with ``t_table[0]`` = the time before the batch and ``t_table[k]`` =
-    the time after the k-th time word. Updates the time part of ``st`` and its statistics.
+
+_SET_BIT = _select_table()
+
+
+def _running(mask: np.ndarray) -> np.ndarray:
+    """Inclusive running count of ``mask`` (int32 when it fits: much faster than int64)."""
+    return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
+
+
+def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> np.ndarray:
+    """Time (µs) in force after each state word, from its TIME_LOW / TIME_HIGH words.
+
+    ``styp`` / ``spay`` are the types / payloads of the batch's state words (positions
+    ``spos``). Returns int64 of ``len(styp) + 1`` with the time before the batch first.
+    Updates the time part of ``st`` and its statistics.
     """
-    tpos = np.flatnonzero(is_th | is_tl)
-    tth = is_th.take(tpos)
-    tpay = pay.take(tpos)
+    is_th = styp == _TIME_HIGH
+    is_time = is_th | (styp == _TIME_LOW)
+    tsel = np.flatnonzero(is_time)
+    if len(tsel) == 0:
+        return np.full(len(styp) + 1, st.t_us, np.int64)
+    tth = is_th.take(tsel)
+    tpay = spay.take(tsel)
     thk = np.flatnonzero(tth)                   # TIME_HIGH words among the time words
     setter = ~tth                               # words that set time_low (TIME_LOW, changed TIME_HIGH)
     high_table = np.empty(len(thk) + 1, np.int64)
@@ -52,7 +77,7 @@ def _time_table(is_th, is_tl, pay, st: DecoderState, w0: int):
         np.add(thv, loops * TIME_HIGH_WRAP, out=high_table[1:])
         back = (step < 0) & ~wrap
         if back.any():
-            st.damage("time_backward", np.count_nonzero(back), w0 + int(tpos[thk[np.argmax(back)]]))
+            st.damage("time_backward", np.count_nonzero(back), w0 + int(spos[tsel[thk[np.argmax(back)]]]))
         st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
         st.stats["time_loops"] += int(loops[-1] - st.loops)
         st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
@@ -63,17 +88,15 @@ def _time_table(is_th, is_tl, pay, st: DecoderState, w0: int):
     low_table[0] = st.tl
     low_table[1:] = tpay.take(low_sel)
     low_table[1:][tth.take(low_sel)] = 0
-    t_table = np.empty(len(tpos) + 1, np.int64)
-    t_table[0] = st.t_us
-    np.left_shift(high_table.take(_index_before(tth)), 12, out=t_table[1:])
-    t_table[1:] |= low_table.take(_index_before(setter))
-    st.t_us, st.tl = int(t_table[-1]), int(t_table[-1] & 0xFFF)
-    return t_table
-
-
-def _index_before(mask: np.ndarray) -> np.ndarray:
-    """Inclusive running count of ``mask`` (int32 when it fits: much faster than int64)."""
-    return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
+    t_time = np.empty(len(tsel) + 1, np.int64)  # time after each time word
+    t_time[0] = st.t_us
+    np.left_shift(high_table.take(_running(tth)), 12, out=t_time[1:])
+    t_time[1:] |= low_table.take(_running(setter))
+    st.t_us, st.tl = int(t_time[-1]), int(t_time[-1] & 0xFFF)
+    t_state = np.empty(len(styp) + 1, np.int64)
+    t_state[0] = t_time[0]
+    t_state[1:] = t_time.take(_running(is_time))
+    return t_state
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -95,9 +118,11 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
 
     Notes
     -----
-    The state in force at each word (time, y) is found with running counts of the words
-    that set it (``cumsum`` of a mask) used as indices into small per-batch tables; a
-    vector word's events are expanded with ``unpackbits`` of its mask.
+    The words that change decoder state (TIME_LOW/HIGH, ADDR_Y, VECT_BASE_X and the vector
+    words) are pulled out into a small "state table" where time, y and vector base are
+    forward-filled with running counts; every ADDR_X word then reads its state with one
+    index (its count of state words before it), and vector words expand through a
+    k-th-set-bit lookup table.
     """
     w = words
     w0 = st.words_seen
@@ -120,142 +145,156 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         st.tl = 0
     typ = w >> 12
     pay = w & 0x0FFF
-    is_y = typ == _ADDR_Y
     is_x = typ == _ADDR_X
     is_vec = (typ >> 1) == (_VECT_12 >> 1)          # VECT_12 or VECT_8
-    is_th = typ == _TIME_HIGH
-    is_tl = typ == _TIME_LOW
-    is_vb = typ == _VECT_BASE_X
+    is_state = (typ == _ADDR_Y) | (typ == _TIME_LOW) | (typ == _TIME_HIGH) | (typ == _VECT_BASE_X) | is_vec
     is_tr = typ == _EXT_TRIGGER
-    n_y, n_x, n_vec, n_th, n_tl, n_vb, n_tr = (int(np.count_nonzero(m)) for m in
-                                               (is_y, is_x, is_vec, is_th, is_tl, is_vb, is_tr))
-    n_other = int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
-    st.stats["others"] += n_other
-    n_unknown = len(w) - (n_y + n_x + n_vec + n_th + n_tl + n_vb + n_tr + n_other)
-    if n_unknown:
-        first = int(np.argmax(np.isin(typ, _UNKNOWN_TYPES)))
-        st.damage("unknown_words", n_unknown, w0 + first)
+    n_x, n_vec, n_state, n_tr = (int(np.count_nonzero(m)) for m in (is_x, is_vec, is_state, is_tr))
+    n_rest = len(w) - n_x - n_state - n_tr         # OTHERS / CONTINUED / IMU / unknown words
+    if n_rest:
+        st.stats["others"] += int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        n_unknown = n_rest - int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        if n_unknown:
+            st.damage("unknown_words", n_unknown, w0 + int(np.argmax(np.isin(typ, _UNKNOWN_TYPES))))
 
-    t_table = _time_table(is_th, is_tl, pay, st, w0) if n_th + n_tl else np.array([st.t_us], np.int64)
-    y_table = np.empty(n_y + 1, np.uint16)
+    # State table: time, y and vector base in force after each state word.
+    spos = np.flatnonzero(is_state)
+    styp = typ.take(spos)
+    spay = pay.take(spos)
+    t_state = _time_after(styp, spay, st, w0, spos)
+    s_is_y = styp == _ADDR_Y
+    y_sel = np.flatnonzero(s_is_y)
+    y_table = np.empty(len(y_sel) + 1, np.uint16)
     y_table[0] = st.y
-    if n_y:
-        y_table[1:] = pay.take(np.flatnonzero(is_y))
-        st.y = int(y_table[-1])
+    y_table[1:] = spay.take(y_sel)
+    y_state = y_table.take(np.concatenate(([0], _running(s_is_y))))
+    st.y = int(y_table[-1])
 
-    def state_at(pos):
-        """(t_us, y payload) in force at word positions ``pos``."""
-        t = t_table.take(_index_before(is_th | is_tl).take(pos)) if len(t_table) > 1 else \
-            np.full(len(pos), t_table[0])
-        y = y_table.take(_index_before(is_y).take(pos)) if n_y else np.full(len(pos), y_table[0], np.uint16)
-        return t, y
+    only_x_and_state = n_tr + n_rest == 0
+    if only_x_and_state:
+        def state_index(pos):                        # state words before each ADDR_X word
+            return pos - np.arange(len(pos))         # (every word before is a state word or ADDR_X)
+    else:
+        cs = _running(is_state)
+
+        def state_index(pos):
+            return cs.take(pos)
 
     triggers = EMPTY_TRIGGERS
     if n_tr:
         tr = np.flatnonzero(is_tr)
-        tp = pay[tr]
-        triggers = triggers_from(state_at(tr)[0], (tp >> 8) & 0xF, tp & 1)
+        tp = pay.take(tr)
+        triggers = triggers_from(t_state.take(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
         st.stats["triggers"] += len(triggers)
 
-    if n_vec == 0:
-        if n_vb:
-            last = int(pay[np.flatnonzero(is_vb)[-1]])
-            st.base_x, st.base_pol = last & 0x7FF, last >> 11
-        if n_x == 0:
-            return EMPTY_EVENTS, triggers
-        src = np.flatnonzero(is_x)               # the word that made each event
-        t, y = state_at(src)
-        ps = pay.take(src)
-        x = ps & 0x7FF
-        p = ps >> 11
+    vsel = np.flatnonzero((styp >> 1) == (_VECT_12 >> 1)) if n_vec else None
+    if n_vec:
+        v_base, v_pol, v_mask, v_count = _vector_words(styp, spay, vsel, st, w0, spos)
     else:
-        src, x, p, vec_events = _expand_vectors(typ, pay, is_x | is_vec, is_vb, n_vb, st, w0)
-        if len(src) == 0:
-            return EMPTY_EVENTS, triggers
-        t, y = state_at(src)
+        vb = np.flatnonzero(styp == _VECT_BASE_X)
+        if len(vb):
+            last = int(spay[vb[-1]])
+            st.base_x, st.base_pol = last & 0x7FF, last >> 11
+    if n_x == 0 and (n_vec == 0 or int(v_count.sum()) == 0):
+        return EMPTY_EVENTS, triggers
+
+    xpos = np.flatnonzero(is_x)
+    kx = state_index(xpos)
+    px = pay.take(xpos)
+    if n_vec == 0:
+        t = t_state.take(kx)
+        y = y_state.take(kx)
+        x = px & 0x7FF
+        p = px >> 11
+        def locate(i):
+            return w0 + int(xpos[i])
+    else:
+        # Insert each vector word's events among the ADDR_X events: ADDR_X words before
+        # vector word j = its position minus the state words before it (and other words).
+        vpos = spos.take(vsel)
+        x_before_v = vpos - vsel if only_x_and_state else np.searchsorted(xpos, vpos)
+        v_first = np.cumsum(v_count) - v_count
+        total = n_x + int(v_count.sum())
+        row = np.repeat(np.arange(len(vsel)), v_count)
+        at_v = (x_before_v + v_first).take(row) + (np.arange(len(row)) - v_first.take(row))
+        is_v_event = np.zeros(total, bool)
+        is_v_event[at_v] = True
+        at_x = np.flatnonzero(~is_v_event)
+        k = np.empty(total, kx.dtype)
+        k[at_x] = kx
+        k[at_v] = vsel.take(row) + 1
+        t = t_state.take(k)
+        y = y_state.take(k)
+        x = np.empty(total, np.uint16)
+        x[at_x] = px & 0x7FF
+        rank = np.arange(len(row)) - v_first.take(row)
+        x[at_v] = v_base.take(row) + _SET_BIT[v_mask.take(row), rank]
+        p = np.empty(total, np.uint16)
+        p[at_x] = px >> 11
+        p[at_v] = v_pol.take(row)
+
+        def locate(i):
+            j = np.searchsorted(at_v, i)
+            return w0 + int(vpos[row[j]] if j < len(at_v) and at_v[j] == i else xpos[np.searchsorted(at_x, i)])
     keep = None
     if int(y.max()) >= 2048:                     # no ADDR_Y yet (0xFFFF) or another system's
         keep = y < 2048
         none = y == 0xFFFF
         if none.any():
-            st.damage("events_without_y", np.count_nonzero(none), w0 + int(src[np.argmax(none)]))
+            st.damage("events_without_y", np.count_nonzero(none), locate(int(np.argmax(none))))
         st.stats["events_other_system"] += int(len(y) - np.count_nonzero(keep) - np.count_nonzero(none))
-        x = np.where(keep, x, 0)
-    if n_vec and vec_events is not None:
-        keep = vec_events if keep is None else keep & vec_events
-    bounds = in_bounds(x, y if keep is None else np.where(keep, y, 0), st, lambda i: w0 + int(src[i]))
+    bounds = in_bounds(x, y if keep is None else np.where(keep, y, 0), st, locate)
     if bounds is not None:
         keep = bounds if keep is None else keep & bounds
-    ev = make_events(len(src))
+    if keep is not None:
+        t, x, y, p = (a[keep] for a in (t, x, y, p))
+    ev = make_events(len(t))
     ev["t"] = t
     ev["x"] = x
     ev["y"] = y
     ev["p"] = p
-    if keep is not None:
-        ev = ev[keep]
     st.stats["events"] += len(ev)
     return ev, triggers
 
 
-def _expand_vectors(typ, pay, is_event, is_vb, n_vb, st: DecoderState, w0: int):
-    """Events of ADDR_X and vector words in stream order.
+def _vector_words(styp, spay, vsel, st: DecoderState, w0: int, spos):
+    """Base x, polarity, 12-bit mask and event count of every vector word (``vsel`` in the state table).
 
-    Returns ``(src, x, p, valid)``: the word position, x and polarity of every event, and a
-    mask that is False for events of vector words with no VECT_BASE_X yet (or None).
+    A vector word's base is its VECT_BASE_X plus the widths (12 / 8) of the vector words
+    between them; words with no VECT_BASE_X yet in the stream get no events (damage).
     """
-    epos = np.flatnonzero(is_event)
-    etyp = typ.take(epos)
-    vsel = np.flatnonzero(etyp != _ADDR_X)       # vector words among the event words
-    vpos = epos.take(vsel)
-    is12 = etyp[vsel] == _VECT_12
+    is12 = styp.take(vsel) == _VECT_12
     widths = np.where(is12, 12, 8)
-    cw = np.cumsum(widths)
-    cw_excl = cw - widths
-    total = int(cw[-1])
-    vmask = pay.take(vpos)
-    vmask[~is12] &= 0xFF
-    # base x of each vector word: its VECT_BASE_X plus the widths of the vector words since
-    if n_vb:
-        vbpos = np.flatnonzero(is_vb)
-        vbpay = pay[vbpos]
-        jb = np.searchsorted(vbpos, vpos) - 1
-        start_cw = np.concatenate((cw_excl, [total]))[np.searchsorted(vpos, vbpos)]
+    cw_excl = np.cumsum(widths) - widths
+    total = int(cw_excl[-1] + widths[-1])
+    mask = spay.take(vsel)
+    mask[~is12] &= 0xFF
+    s_is_vb = styp == _VECT_BASE_X
+    vb_sel = np.flatnonzero(s_is_vb)
+    if len(vb_sel):
+        vbpay = spay.take(vb_sel)
+        jb = _running(s_is_vb).take(vsel) - 1         # last VECT_BASE_X before each vector word
+        start_cw = np.append(cw_excl, total).take(np.searchsorted(vsel, vb_sel))
         has = jb >= 0
         jbc = np.maximum(jb, 0)
-        base = np.where(has, (vbpay[jbc] & 0x7FF).astype(np.int64) + cw_excl - start_cw[jbc],
-                        st.base_x + cw_excl)
-        pol = np.where(has, vbpay[jbc] >> 11, st.base_pol)
+        vb = vbpay.take(jbc)
+        base = np.where(has, (vb & 0x7FF).astype(np.int64) + cw_excl - start_cw.take(jbc), st.base_x + cw_excl)
+        pol = np.where(has, vb >> 11, st.base_pol)
         no_base = ~has & (st.base_x < 0)
         st.base_x = int(vbpay[-1] & 0x7FF) + total - int(start_cw[-1])
         st.base_pol = int(vbpay[-1] >> 11)
     else:
         base = st.base_x + cw_excl
-        pol = np.full(len(vpos), st.base_pol)
-        no_base = np.full(len(vpos), st.base_x < 0)
+        pol = np.full(len(vsel), st.base_pol)
+        no_base = np.full(len(vsel), st.base_x < 0)
         if st.base_x >= 0:
             st.base_x += total
-    n_v = np.bitwise_count(vmask).astype(np.int64)
-    cnt = np.ones(len(epos), np.int64)
-    cnt[vsel] = n_v
-    src = np.repeat(epos, cnt)
-    ps = pay.take(src)
-    x = (ps & 0x7FF).astype(np.int64)
-    p = ps >> 11
-    # where each vector word's events land in the output, and which bit each one is
-    extra = n_v - 1
-    out_first = vsel + np.cumsum(extra) - extra
-    bits = np.unpackbits(vmask.astype("<u2").view(np.uint8).reshape(-1, 2), axis=1, bitorder="little")
-    flat = np.flatnonzero(bits.view(bool))
-    row, col = flat >> 4, flat & 15
-    at = out_first[row] + (np.arange(len(row)) - (np.cumsum(n_v) - n_v)[row])
-    x[at] = base[row] + col
-    p[at] = pol[row]
-    valid = None
     if no_base.any():
-        valid = np.ones(len(src), bool)
-        valid[at[no_base[row]]] = False
-        st.damage("vectors_without_base", int(n_v[no_base].sum()), w0 + int(vpos[no_base][0]))
-    return src, np.minimum(x, 0xFFFF), p, valid
+        st.damage("vectors_without_base", int(np.bitwise_count(mask[no_base]).sum()),
+                  w0 + int(spos[vsel[np.argmax(no_base)]]))
+        mask[no_base] = 0
+    count = np.bitwise_count(mask).astype(np.int64)
+    return np.minimum(base, 0xFFF0).astype(np.uint16), pol.astype(np.uint16), mask, count
 
 
 def finish(st: DecoderState) -> None:
