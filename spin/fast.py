@@ -3,12 +3,14 @@
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
 2. The best mutually distinct grid points are refined with L-BFGS
-   (:mod:`spin.refine`) over growing rotation spans and finer IWEs, ending on the
-   whole window at full resolution; the velocity stays at the prior unless the
-   window covers enough rotation to separate spin from translation.
-3. The best refined candidate wins; the contrast margin to the runner-up (a
-   different axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) and the contrast gain over no rotation give the confidence.
+   (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
+   growing rotation spans and finer IWEs, ending on the whole window at full
+   resolution; the velocity stays at the prior unless the window covers enough
+   rotation to separate spin from translation.
+3. Confidence: the contrast margin of the winner over the best distinct rival
+   (another axis or speed, e.g. an aliased omega of a symmetric texture or the
+   mirrored axis), the contrast gain over no rotation, and the motion the window
+   covers (pixels travelled at the ball's equator).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.refine import maximise
-from spin.search import coarse_search, distinct_candidates, events_for_span
+from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events); the last level uses the whole window.
 LEVELS = ((2.0, 16.0, 1.0, 800), (6.0, 32.0, 1.0, 2000), (np.inf, 200.0, 1.0, 8000))
@@ -45,8 +47,8 @@ def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  n_candidates: int = 3, n_directions: int = 120, coarse_events: int = 400,
-                  levels=LEVELS, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  omega_ratio: float = 1.25, n_candidates: int = 3, n_directions: int = 120,
+                  coarse_events: int = 400, levels=LEVELS, max_iterations: int = 20, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -63,43 +65,40 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
+    ev = by_time_to_reference(ev)
     omegas, directions, scores = coarse_search(
-        ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s,
+        ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
-    final = None
-    results = []
-    for w in starts:
-        v = v0
-        for li, (span, radius, sigma, n_ev) in enumerate(levels):
-            last = li == len(levels) - 1
-            omega = float(np.linalg.norm(w))
-            if not last and span / max(omega, 1e-9) >= window_s and len(ev) <= n_ev:
-                continue  # this level already sees the whole window: go to the last one
-            if last:
-                if final is None:
-                    final = events_for_span(ev, 1e-9, np.inf, n_ev)
-                sub = final
-            else:
-                sub = events_for_span(ev, omega, span, n_ev)
-            geometry = IweGeometry(r, min(1.0, radius / r), sigma, hemispheres)
-            rv = False
-            if last:
-                rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
-            res = maximise(sub, w, v, geometry, refine_velocity=rv)
-            w, v = res.w_rad_s, res.v_px_s
-        results.append(res)
-    results.sort(key=lambda m: -m.contrast)
+
+    def geometry(level):
+        return IweGeometry(r, min(1.0, level[1] / r), level[2], hemispheres)
+
+    # first level: every candidate on the same events (chosen for the best one's omega)
+    first = levels[0]
+    sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=max_iterations) for w in starts),
+                     key=lambda m: -m.contrast)
     best = results[0]
-    geometry = IweGeometry(r, min(1.0, levels[-1][1] / r), levels[-1][2], hemispheres)
-    still = contrast(final, np.zeros(3), best.v_px_s, geometry, gradient=False)
-    gain = max(0.0, 1.0 - still / max(best.contrast, 1e-30))
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s)), None)
-    margin = 1.0
-    if rival is not None:
-        margin = (best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
-    coverage = float(np.linalg.norm(best.w_rad_s)) * window_s
-    confidence = float(np.clip(gain / 0.3, 0, 1) * np.clip(margin / 0.1, 0, 1) * np.clip(coverage / 0.5, 0, 1))
-    return FastResult(best.w_rad_s, best.v_px_s, best.contrast, best.success, confidence,
-                      None if rival is None else rival.w_rad_s)
+    still = contrast(sub, np.zeros(3), v0, geometry(first), gradient=False)
+    gain = max(0.0, 1.0 - still / max(best.contrast, 1e-30))
+    margin = 1.0 if rival is None else (best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window
+    w, v = best.w_rad_s, best.v_px_s
+    for li, level in enumerate(levels[1:], start=1):
+        span, _, _, n_ev = level
+        last = li == len(levels) - 1
+        omega = float(np.linalg.norm(w))
+        if not last and span / max(omega, 1e-9) >= window_s and levels[li - 1][0] / max(omega, 1e-9) >= window_s:
+            continue  # the previous level already saw the whole window
+        sub = events_for_span(ev, 1e-9 if last else omega, np.inf if last else span, n_ev)
+        rv = False
+        if last:
+            rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
+        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=max_iterations)
+        w, v = best.w_rad_s, best.v_px_s
+    coverage_px = float(np.linalg.norm(w)) * window_s * r
+    confidence = float(np.clip(gain / 0.3, 0, 1) * np.clip(margin / 0.1, 0, 1) * np.clip(coverage_px / 5.0, 0, 1))
+    return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s)

@@ -51,6 +51,6 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
         return -val * norm, g
 
     res = minimize(fun, np.zeros(n_params), jac=True, method="L-BFGS-B",
-                   options={"maxiter": max_iterations, "gtol": 1e-5, "ftol": 1e-9})
+                   options={"maxiter": max_iterations, "maxfun": 2 * max_iterations, "gtol": 1e-5, "ftol": 1e-9})
     w, v = unpack(res.x)
     return LocalMax(w, np.asarray(v, dtype=np.float64), float(-res.fun / norm), bool(res.success), int(res.nfev))
