@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spin.fast import estimate_fast
-from spin.objective import BallEvents
+from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
 from spin.search import by_time_to_reference, coarse_search, distinct_candidates
 
@@ -158,7 +158,10 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
                                                  omega_max_rad_s=2 * np.pi * 1500.0)
             w0 = distinct_candidates(omegas, dirs, scores, 1)[0]
         res = estimate_paper(ev, w0, v0, **opts)
-        w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, np.nan
+        w, v, value, converged = res.w_rad_s, res.v_px_s, res.contrast, res.converged
+        # the paper gives no quality figure: use the contrast gain over no rotation
+        still = contrast(ev, np.zeros(3), v, IweGeometry(ev.radius_px), gradient=False)
+        confidence = float(np.clip((1.0 - still / max(value, 1e-30)) / 0.3, 0.0, 1.0))
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
     return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
