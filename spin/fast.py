@@ -9,7 +9,8 @@
    rotation to separate spin from translation.
 3. Confidence: the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis), the contrast gain over no rotation, and the motion the window
+   mirrored axis) on the final events, the agreement of the IWEs of two halves of
+   the events (structure rather than over-fitted noise), and the motion the window
    covers (pixels travelled at the ball's equator).
 """
 
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, contrast
+from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
 from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
 
@@ -35,6 +36,9 @@ class FastResult:
     converged: bool
     confidence: float
     runner_up_w_rad_s: np.ndarray | None
+    agreement: float
+    margin: float
+    coverage_px: float
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
@@ -43,6 +47,19 @@ def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
         return o1 == o2
     cos = np.dot(w1, w2) / (o1 * o2)
     return cos > np.cos(np.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
+
+
+def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
+    """Correlation of the IWEs of the even and the odd events (-1..1).
+
+    High when both halves show the same aligned texture; near 0 for events without
+    consistent structure (noise), where a maximum is only over-fitting.
+    """
+    a = iwe(ev.take(slice(0, None, 2)), w, v, geometry).ravel()
+    b = iwe(ev.take(slice(1, None, 2)), w, v, geometry).ravel()
+    a = a - a.mean()
+    b = b - b.mean()
+    return float(np.dot(a, b) / max(np.sqrt(np.dot(a, a) * np.dot(b, b)), 1e-30))
 
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
@@ -81,10 +98,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=max_iterations) for w in starts),
                      key=lambda m: -m.contrast)
     best = results[0]
-    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s)), None)
-    still = contrast(sub, np.zeros(3), v0, geometry(first), gradient=False)
-    gain = max(0.0, 1.0 - still / max(best.contrast, 1e-30))
-    margin = 1.0 if rival is None else (best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window
     w, v = best.w_rad_s, best.v_px_s
     for li, level in enumerate(levels[1:], start=1):
@@ -99,6 +113,18 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=max_iterations)
         w, v = best.w_rad_s, best.v_px_s
+    final = geometry(levels[-1])
+    still = contrast(sub, np.zeros(3), v, final, gradient=False)
+    margin = 1.0
+    if rival is not None:  # the runner-up of the first level, refined briefly on the final events
+        rival = maximise(sub, rival.w_rad_s, v, final, max_iterations=8)
+        if _same(rival.w_rad_s, w):
+            rival = None
+        else:
+            margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    agreement = _half_agreement(sub, w, v, final)
     coverage_px = float(np.linalg.norm(w)) * window_s * r
-    confidence = float(np.clip(gain / 0.3, 0, 1) * np.clip(margin / 0.1, 0, 1) * np.clip(coverage_px / 5.0, 0, 1))
-    return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s)
+    confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
+                       * np.clip(coverage_px / 3.0, 0, 1))
+    return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
+                      agreement, margin, coverage_px)

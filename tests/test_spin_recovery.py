@@ -72,3 +72,16 @@ def test_estimate_windows_along_a_track(ball):
         assert win.t_start_us <= est.t_start_us < est.t_end_us <= win.t_end_us
     cols = spin.to_columns(estimates)
     assert np.allclose(cols["rps"], [e.rps for e in estimates]) and cols["axis"].shape == (2, 3)
+
+
+def test_unstructured_events_give_low_confidence():
+    from capture.events import make_events
+
+    rng = np.random.default_rng(0)
+    n = 6000
+    ang = rng.uniform(0, 2 * np.pi, n)
+    rad = 40 * np.sqrt(rng.uniform(0, 1, n))
+    noise = make_events(np.sort(rng.integers(0, 3000, n)), 200 + rad * np.cos(ang), 150 + rad * np.sin(ang),
+                        rng.integers(0, 2, n))
+    est = spin.estimate_spin(noise, (200, 150), 40, velocity=(0, 0))
+    assert est.confidence < 0.2
