@@ -24,8 +24,9 @@ from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
 from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
 
-# (rotation span rad, IWE radius px, blur sigma IWE px, events); the last level uses the whole window.
-LEVELS = ((2.0, 16.0, 1.0, 800), (6.0, 32.0, 1.0, 2000), (np.inf, 200.0, 1.0, 8000))
+# (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
+# uses the whole window.
+LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (np.inf, 100.0, 1.0, 5000, 12))
 
 
 @dataclass(frozen=True)
@@ -64,8 +65,8 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  omega_ratio: float = 1.25, n_candidates: int = 3, n_directions: int = 120,
-                  coarse_events: int = 400, levels=LEVELS, max_iterations: int = 20, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  omega_ratio: float = 1.4, n_candidates: int = 2, n_directions: int = 60,
+                  coarse_events: int = 250, levels=LEVELS, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -95,23 +96,21 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=max_iterations) for w in starts),
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4]) for w in starts),
                      key=lambda m: -m.contrast)
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window
     w, v = best.w_rad_s, best.v_px_s
     for li, level in enumerate(levels[1:], start=1):
-        span, _, _, n_ev = level
+        span, _, _, n_ev, iterations = level
         last = li == len(levels) - 1
         omega = float(np.linalg.norm(w))
-        if not last and span / max(omega, 1e-9) >= window_s and levels[li - 1][0] / max(omega, 1e-9) >= window_s:
-            continue  # the previous level already saw the whole window
         sub = events_for_span(ev, 1e-9 if last else omega, np.inf if last else span, n_ev)
         rv = False
         if last:
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
-        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=max_iterations)
+        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=iterations)
         w, v = best.w_rad_s, best.v_px_s
     final = geometry(levels[-1])
     still = contrast(sub, np.zeros(3), v, final, gradient=False)
