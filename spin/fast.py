@@ -9,7 +9,7 @@
    rotation to separate spin from translation.
 3. Confidence: the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) on the final events, the agreement of the IWEs of two halves of
+   mirrored axis) on the second-last level's events, the agreement of the IWEs of two halves of
    the events (structure rather than over-fitted noise), and the motion the window
    covers (pixels travelled at the ball's equator).
 """
@@ -26,7 +26,8 @@ from spin.search import by_time_to_reference, coarse_search, distinct_candidates
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
 # uses the whole window.
-LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (np.inf, 100.0, 1.0, 5000, 12))
+LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (6.0, 64.0, 1.0, 3000, 8),
+          (np.inf, 100.0, 0.6, 10000, 8))
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,10 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                      key=lambda m: -m.contrast)
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
-    # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window
+    # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
+    # the runner-up is refined briefly on the second-last level's events to measure the margin
     w, v = best.w_rad_s, best.v_px_s
+    margin = 1.0
     for li, level in enumerate(levels[1:], start=1):
         span, _, _, n_ev, iterations = level
         last = li == len(levels) - 1
@@ -112,15 +115,14 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=iterations)
         w, v = best.w_rad_s, best.v_px_s
+        if li == len(levels) - 2 and rival is not None:
+            rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
+            still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False)
+            if _same(rival.w_rad_s, w):
+                rival = None
+            else:
+                margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
     final = geometry(levels[-1])
-    still = contrast(sub, np.zeros(3), v, final, gradient=False)
-    margin = 1.0
-    if rival is not None:  # the runner-up of the first level, refined briefly on the final events
-        rival = maximise(sub, rival.w_rad_s, v, final, max_iterations=8)
-        if _same(rival.w_rad_s, w):
-            rival = None
-        else:
-            margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
     agreement = _half_agreement(sub, w, v, final)
     coverage_px = float(np.linalg.norm(w)) * window_s * r
     confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)

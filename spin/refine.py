@@ -44,7 +44,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
 
     def fun(x):
         w, v = unpack(x)
-        val, gw, gv = contrast(ev, w, v, geometry)
+        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity)
         g = -gw * w_unit * norm
         if refine_velocity:
             g = np.concatenate([g, -gv * v_unit * norm])
