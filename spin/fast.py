@@ -25,9 +25,9 @@ from spin.refine import maximise
 from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
-# uses the whole window.
+# uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
 LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (6.0, 64.0, 1.0, 3000, 8),
-          (np.inf, 100.0, 0.6, 10000, 8))
+          (np.inf, 100.0, 0.55, 10000, 8))
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.4, n_candidates: int = 2, n_directions: int = 60,
-                  coarse_events: int = 250, levels=LEVELS, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  coarse_events: int = 250, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -92,7 +92,10 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
 
     def geometry(level):
-        return IweGeometry(r, min(1.0, level[1] / r), level[2], hemispheres)
+        scale = min(max_scale, level[1] / r)
+        # the last level's blur is given in ball pixels (small balls get an upsampled IWE)
+        sigma = level[2] * scale if level is levels[-1] else level[2]
+        return IweGeometry(r, scale, sigma, hemispheres)
 
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
