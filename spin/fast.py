@@ -130,5 +130,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     coverage_px = float(np.linalg.norm(w)) * window_s * r
     confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
                        * np.clip(coverage_px / 3.0, 0, 1))
+    if not velocity_known:
+        # without a velocity prior, rotation about an in-image axis and translation trade off
+        # unless the window covers a good part of a revolution
+        in_plane = float(np.linalg.norm(w[:2]) / max(np.linalg.norm(w), 1e-30))
+        rotation_rad = float(np.linalg.norm(w)) * window_s
+        confidence *= 1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2)))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
                       agreement, margin, coverage_px)
