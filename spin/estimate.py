@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from spin.fast import estimate_fast
-from spin.objective import BallEvents
+from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
-from spin.search import coarse_search, distinct_candidates
+from spin.search import by_time_to_reference, coarse_search, distinct_candidates
 
 
 class SpinInputError(ValueError):
@@ -72,8 +72,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
             max_events: int | None = None, min_events: int = 200, sensor_size=None) -> tuple[BallEvents, np.ndarray]:
     """Select the events inside the moving circle and express them for warping.
 
-    Returns the :class:`BallEvents` (``t_ref`` at the middle of the selected events)
-    and the selected raw events.  Raises :class:`SpinInputError` naming the problem.
+    Returns the :class:`BallEvents` (float32; ``t_ref`` at the middle of the
+    selected events) and the selected raw events.  Raises :class:`SpinInputError` naming the problem.
     """
     events = _check_events(events)
     cx, cy = (float(c) for c in center)
@@ -103,7 +103,7 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     s = s[idx]
     t_ref = 0.5 * (s[0] + s[-1])
     ball = BallEvents(events["x"][idx] - cx, events["y"][idx] - cy, s, t_ref - s,
-                      2.0 * sel["p"].astype(np.float64) - 1.0, r)
+                      2.0 * sel["p"].astype(np.float64) - 1.0, r).astype(np.float32)
     return ball, sel
 
 
@@ -154,11 +154,14 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
                           sensor_size=sensor_size)
         w0 = opts.pop("init_w_rad_s", None)
         if w0 is None:
-            omegas, dirs, scores = coarse_search(ev, v0, omega_min_rad_s=2 * np.pi * 3.0,
+            omegas, dirs, scores = coarse_search(by_time_to_reference(ev), v0, omega_min_rad_s=2 * np.pi * 3.0,
                                                  omega_max_rad_s=2 * np.pi * 1500.0)
             w0 = distinct_candidates(omegas, dirs, scores, 1)[0]
         res = estimate_paper(ev, w0, v0, **opts)
-        w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, np.nan
+        w, v, value, converged = res.w_rad_s, res.v_px_s, res.contrast, res.converged
+        # the paper gives no quality figure: use the contrast gain over no rotation
+        still = contrast(ev, np.zeros(3), v, IweGeometry(ev.radius_px), gradient=False)
+        confidence = float(np.clip((1.0 - still / max(value, 1e-30)) / 0.3, 0.0, 1.0))
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
     return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),

@@ -3,12 +3,15 @@
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
 2. The best mutually distinct grid points are refined with L-BFGS
-   (:mod:`spin.refine`) over growing rotation spans and finer IWEs, ending on the
-   whole window at full resolution; the velocity stays at the prior unless the
-   window covers enough rotation to separate spin from translation.
-3. The best refined candidate wins; the contrast margin to the runner-up (a
-   different axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) and the contrast gain over no rotation give the confidence.
+   (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
+   growing rotation spans and finer IWEs, ending on the whole window at full
+   resolution; the velocity stays at the prior unless the window covers enough
+   rotation to separate spin from translation.
+3. Confidence: the contrast margin of the winner over the best distinct rival
+   (another axis or speed, e.g. an aliased omega of a symmetric texture or the
+   mirrored axis) on the second-last level's events, the agreement of the IWEs of two halves of
+   the events (structure rather than over-fitted noise), and the motion the window
+   covers (pixels travelled at the ball's equator).
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, contrast
+from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
-from spin.search import coarse_search, distinct_candidates, events_for_span
+from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
 
-# (rotation span rad, IWE radius px, blur sigma IWE px, events); the last level uses the whole window.
-LEVELS = ((2.0, 16.0, 1.0, 800), (6.0, 32.0, 1.0, 2000), (np.inf, 200.0, 1.0, 8000))
+# (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
+# uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
+LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (6.0, 64.0, 1.0, 3000, 8),
+          (np.inf, 100.0, 0.55, 10000, 8))
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,9 @@ class FastResult:
     converged: bool
     confidence: float
     runner_up_w_rad_s: np.ndarray | None
+    agreement: float
+    margin: float
+    coverage_px: float
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
@@ -43,10 +51,23 @@ def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
     return cos > np.cos(np.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
 
 
+def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
+    """Correlation of the IWEs of the even and the odd events (-1..1).
+
+    High when both halves show the same aligned texture; near 0 for events without
+    consistent structure (noise), where a maximum is only over-fitting.
+    """
+    a = iwe(ev.take(slice(0, None, 2)), w, v, geometry).ravel()
+    b = iwe(ev.take(slice(1, None, 2)), w, v, geometry).ravel()
+    a = a - a.mean()
+    b = b - b.mean()
+    return float(np.dot(a, b) / max(np.sqrt(np.dot(a, a) * np.dot(b, b)), 1e-30))
+
+
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  n_candidates: int = 3, n_directions: int = 120, coarse_events: int = 400,
-                  levels=LEVELS, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  omega_ratio: float = 1.4, n_candidates: int = 2, n_directions: int = 60,
+                  coarse_events: int = 250, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -63,43 +84,57 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
+    ev = by_time_to_reference(ev)
     omegas, directions, scores = coarse_search(
-        ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s,
+        ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
-    final = None
-    results = []
-    for w in starts:
-        v = v0
-        for li, (span, radius, sigma, n_ev) in enumerate(levels):
-            last = li == len(levels) - 1
-            omega = float(np.linalg.norm(w))
-            if not last and span / max(omega, 1e-9) >= window_s and len(ev) <= n_ev:
-                continue  # this level already sees the whole window: go to the last one
-            if last:
-                if final is None:
-                    final = events_for_span(ev, 1e-9, np.inf, n_ev)
-                sub = final
-            else:
-                sub = events_for_span(ev, omega, span, n_ev)
-            geometry = IweGeometry(r, min(1.0, radius / r), sigma, hemispheres)
-            rv = False
-            if last:
-                rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
-            res = maximise(sub, w, v, geometry, refine_velocity=rv)
-            w, v = res.w_rad_s, res.v_px_s
-        results.append(res)
-    results.sort(key=lambda m: -m.contrast)
+
+    def geometry(level):
+        scale = min(max_scale, level[1] / r)
+        # the last level's blur is given in ball pixels (small balls get an upsampled IWE)
+        sigma = level[2] * scale if level is levels[-1] else level[2]
+        return IweGeometry(r, scale, sigma, hemispheres)
+
+    # first level: every candidate on the same events (chosen for the best one's omega)
+    first = levels[0]
+    sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4]) for w in starts),
+                     key=lambda m: -m.contrast)
     best = results[0]
-    geometry = IweGeometry(r, min(1.0, levels[-1][1] / r), levels[-1][2], hemispheres)
-    still = contrast(final, np.zeros(3), best.v_px_s, geometry, gradient=False)
-    gain = max(0.0, 1.0 - still / max(best.contrast, 1e-30))
-    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s)), None)
+    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
+    # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
+    # the runner-up is refined briefly on the second-last level's events to measure the margin
+    w, v = best.w_rad_s, best.v_px_s
     margin = 1.0
-    if rival is not None:
-        margin = (best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
-    coverage = float(np.linalg.norm(best.w_rad_s)) * window_s
-    confidence = float(np.clip(gain / 0.3, 0, 1) * np.clip(margin / 0.1, 0, 1) * np.clip(coverage / 0.5, 0, 1))
-    return FastResult(best.w_rad_s, best.v_px_s, best.contrast, best.success, confidence,
-                      None if rival is None else rival.w_rad_s)
+    for li, level in enumerate(levels[1:], start=1):
+        span, _, _, n_ev, iterations = level
+        last = li == len(levels) - 1
+        omega = float(np.linalg.norm(w))
+        sub = events_for_span(ev, 1e-9 if last else omega, np.inf if last else span, n_ev)
+        rv = False
+        if last:
+            rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
+        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=iterations)
+        w, v = best.w_rad_s, best.v_px_s
+        if li == len(levels) - 2 and rival is not None:
+            rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
+            still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False)
+            if _same(rival.w_rad_s, w):
+                rival = None
+            else:
+                margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    final = geometry(levels[-1])
+    agreement = _half_agreement(sub, w, v, final)
+    coverage_px = float(np.linalg.norm(w)) * window_s * r
+    confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
+                       * np.clip(coverage_px / 3.0, 0, 1))
+    if not velocity_known:
+        # without a velocity prior, rotation about an in-image axis and translation trade off
+        # unless the window covers a good part of a revolution
+        in_plane = float(np.linalg.norm(w[:2]) / max(np.linalg.norm(w), 1e-30))
+        rotation_rad = float(np.linalg.norm(w)) * window_s
+        confidence *= 1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2)))
+    return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
+                      agreement, margin, coverage_px)

@@ -42,7 +42,8 @@ def _residuals(theta, points, values, image1, center1, scale):
     x = q[:, 0] + center1[0]
     y = q[:, 1] + center1[1]
     sampled = map_coordinates(image1, [y, x], order=1, mode="nearest")
-    return np.where(visible, values - sampled, 0.0)
+    # pixels rotated out of view are predicted by the mean brightness (hiding them must not pay)
+    return np.where(visible, values - sampled, values - values.mean())
 
 
 def estimate_image_pair(frame0, frame1, dt_s: float, circle0, circle1, *, n_directions: int = 300,

@@ -84,11 +84,12 @@ class IweGeometry:
 
     def to_iwe(self, px, py, pz):
         """IWE coordinates (u, v) of points given relative to the ball centre (px)."""
-        off = self.radius_px * self.scale + self.pad
-        u = px * self.scale + off
+        dt = np.result_type(px).type
+        off = dt(self.radius_px * self.scale + self.pad)
+        u = px * dt(self.scale) + off
         if self.hemispheres:
             u = u + (pz > 0) * self.size
-        return u, py * self.scale + off
+        return u, py * dt(self.scale) + off
 
 
 def _blur(image: np.ndarray, sigma: float) -> np.ndarray:
@@ -102,8 +103,8 @@ def _corners(u, v, width, height):
     v = np.clip(v, 0.0, height - 1.001)
     iu = np.floor(u)
     iv = np.floor(v)
-    fu = (u - iu).astype(np.float32)
-    fv = (v - iv).astype(np.float32)
+    fu = (u - iu).astype(np.float32, copy=False)
+    fv = (v - iv).astype(np.float32, copy=False)
     idx = iv.astype(np.int64) * width + iu.astype(np.int64)
     return idx, fu, fv
 
@@ -133,12 +134,12 @@ def lift_moving(ev: BallEvents, velocity_px_s):
 
     Also returns ``dz/ddx`` and ``dz/ddy`` factors (``dx/sqrt(r^2-d^2)``), zero where clamped.
     """
-    vx, vy = velocity_px_s
+    vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
     dx = ev.x_px - vx * ev.s_s
     dy = ev.y_px - vy * ev.s_s
-    r2 = ev.radius_px * ev.radius_px
+    r2 = dx.dtype.type(ev.radius_px * ev.radius_px)
     zq = r2 - dx * dx - dy * dy
-    floor = 0.01 * r2
+    floor = dx.dtype.type(0.01) * r2
     clamped = zq < floor
     root = np.sqrt(np.maximum(zq, floor))
     inv = np.where(clamped, 0.0, 1.0 / root).astype(dx.dtype)
@@ -159,7 +160,8 @@ def iwe(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry) -> np.nda
     return _blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
 
 
-def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True):
+def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
+             velocity_gradient: bool = True):
     """Variance of the IWE and, optionally, its gradient.
 
     Parameters
@@ -175,7 +177,7 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     -------
     value : float
     grad_w : ndarray (3,)  (only with ``gradient``)
-    grad_v : ndarray (2,)  (only with ``gradient``)
+    grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
     dt = ev.tau_s.dtype
     p, dzdx, dzdy = lift_moving(ev, velocity_px_s)
@@ -205,6 +207,8 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     # d f / d theta_k = J_l^T (q_k x g_k); d f / d w = sum_k tau_k d f / d theta_k
     dtheta = left_jacobian_transpose_apply(theta, cross(q, gq), coef)
     grad_w = np.array([np.einsum("i,i->", ev.tau_s, dtheta[i]) for i in range(3)], dtype=np.float64)
+    if not velocity_gradient:
+        return value, grad_w, np.zeros(2)
     # d f / d p_k = R_k^T g_k  (rotation by -theta); p depends on v through the centre offset
     gp = rotate(gq, tuple(-t for t in theta), coef)
     grad_v = np.array([-np.einsum("i,i->", ev.s_s, gp[0] + gp[2] * dzdx), -np.einsum("i,i->", ev.s_s, gp[1] + gp[2] * dzdy)],

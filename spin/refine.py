@@ -35,22 +35,24 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     reach_px = ev.radius_px * geometry.scale
     w_unit = geometry.sigma / (span_s * reach_px)
     v_unit = geometry.sigma / (span_s * geometry.scale)
-    f0 = contrast(ev, w0, v0, geometry, gradient=False)
-    norm = 1.0 / max(f0, 1e-30)
     n_params = 5 if refine_velocity else 3
+    norm = None  # 1 / contrast at the start, set by the first evaluation
 
     def unpack(x):
         return w0 + x[:3] * w_unit, (v0 + x[3:5] * v_unit) if refine_velocity else v0
 
     def fun(x):
+        nonlocal norm
         w, v = unpack(x)
-        val, gw, gv = contrast(ev, w, v, geometry)
+        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity)
+        if norm is None:
+            norm = 1.0 / max(val, 1e-30)
         g = -gw * w_unit * norm
         if refine_velocity:
             g = np.concatenate([g, -gv * v_unit * norm])
         return -val * norm, g
 
     res = minimize(fun, np.zeros(n_params), jac=True, method="L-BFGS-B",
-                   options={"maxiter": max_iterations, "gtol": 1e-5, "ftol": 1e-9})
+                   options={"maxiter": max_iterations, "maxfun": 2 * max_iterations, "gtol": 1e-5, "ftol": 1e-9})
     w, v = unpack(res.x)
     return LocalMax(w, np.asarray(v, dtype=np.float64), float(-res.fun / norm), bool(res.success), int(res.nfev))

@@ -1,0 +1,158 @@
+"""Spin benchmark after the seed paper's Figs 9-10 / Table 1, on the simulator.
+
+Rows: volleyball at 10..500 rps and soccer at 100 rps (random axes, 640x480,
+threshold 0.15, 50,000 events, ball radius 100 px), plus volleyball at 1,000 rps and
+small balls (radius 30 px, 5,000 and 20,000 events).  Methods: ``fast`` (default
+estimator), ``paper`` (Adam, 1,500 iterations, 50k events; slow, so run on fewer
+sequences: ``--paper-seqs``), and the image baseline (two-frame registration after
+Tamaki et al.) at 60/120/240/480 fps on sharp rendered frames of the same ball.
+
+Prints per row and method: median/mean axis error (deg), median/mean omega error
+(%), success rate (axis < 5 deg and omega < 5 %), time per estimate, and the
+speed ratio paper/fast measured on the same sequences in this run.
+
+    python bench/spin_bench.py --quick          # a few minutes
+    python bench/spin_bench.py --seqs 10 --paper-seqs 1 --json out.json
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # BLAS worker threads only slow these small problems down
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import sim  # noqa: E402
+import spin  # noqa: E402
+from sim.balls import make_ball  # noqa: E402
+from sim.scene import Camera, Scene  # noqa: E402
+from spin.image_baseline import estimate_image_pair  # noqa: E402
+
+WIDTH, HEIGHT = 640, 480
+PAPER_ROWS = [("volleyball", rps, 100.0, 50_000) for rps in (10, 20, 30, 50, 100, 200, 300, 500)] + [
+    ("soccer", 100, 100.0, 50_000)]
+EXTRA_ROWS = [("volleyball", 1000, 100.0, 50_000), ("volleyball", 100, 30.0, 5_000), ("volleyball", 100, 30.0, 20_000)]
+QUICK_ROWS = [("volleyball", 30, 100.0, 50_000), ("volleyball", 300, 100.0, 50_000), ("soccer", 100, 100.0, 50_000),
+              ("volleyball", 1000, 100.0, 50_000), ("volleyball", 100, 30.0, 5_000)]
+
+
+def random_axis(rng):
+    a = rng.normal(size=3)
+    return a / np.linalg.norm(a)
+
+
+def errors(axis, omega, truth):
+    axis_deg = float(np.degrees(np.arccos(np.clip(np.dot(axis, truth["axis"]), -1.0, 1.0))))
+    return axis_deg, 100.0 * abs(omega - truth["omega_rad_s"]) / truth["omega_rad_s"]
+
+
+def frame_pair(texture, truth, fps):
+    """Two sharp frames of the simulated ball, 1/fps apart (ball region only) and their circles."""
+    cam = Camera(WIDTH, HEIGHT, "orthographic", 800.0)
+    ball = make_ball(cam, texture=texture, radius_px=truth["radius_px"], center_px=truth["center"],
+                     velocity_px_s=truth["velocity_px_s"], accel_px_s2=(0.0, 0.0), axis=truth["axis"],
+                     omega_rad_s=truth["omega_rad_s"], R0=truth["R0"])
+    scene = Scene(cam, [ball])
+    t = np.array([0.0, 1.0 / fps])
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
+    frames = scene.render(u.ravel().astype(float), v.ravel().astype(float), t).reshape(2, HEIGHT, WIDTH)
+    circles = ball.circle(cam, t)
+    return frames[0], frames[1], tuple(circles[0]), tuple(circles[1])
+
+
+def summarise(rows):
+    a = np.array([r[0] for r in rows])
+    o = np.array([r[1] for r in rows])
+    t = np.array([r[2] for r in rows])
+    ok = (a < 5.0) & (o < 5.0)
+    return {"n": len(rows), "axis_median_deg": float(np.median(a)), "axis_mean_deg": float(np.mean(a)),
+            "omega_median_pct": float(np.median(o)), "omega_mean_pct": float(np.mean(o)),
+            "success_pct": float(100.0 * ok.mean()), "time_s": float(np.mean(t))}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small subset (a few minutes)")
+    ap.add_argument("--seqs", type=int, default=None, help="sequences per row for the fast method")
+    ap.add_argument("--paper-seqs", type=int, default=None, help="sequences per row for the paper method")
+    ap.add_argument("--paper-rows", default=None, help="comma-separated row indices for the paper method")
+    ap.add_argument("--image-seqs", type=int, default=None, help="sequences per row for the image baseline")
+    ap.add_argument("--fps", default="60,120,240,480")
+    ap.add_argument("--rows", default=None, help="comma-separated row indices (default: all)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", default=None, help="write the results here")
+    args = ap.parse_args(argv)
+    rows = QUICK_ROWS if args.quick else PAPER_ROWS + EXTRA_ROWS
+    if args.rows:
+        rows = [rows[int(i)] for i in args.rows.split(",")]
+    seqs = args.seqs or (3 if args.quick else 20)
+    paper_seqs = args.paper_seqs if args.paper_seqs is not None else 1
+    paper_rows = set(range(len(rows))) if args.paper_rows is None else {int(i) for i in args.paper_rows.split(",")}
+    if args.quick and args.paper_rows is None:
+        paper_rows = {2}
+    image_seqs = args.image_seqs if args.image_seqs is not None else (1 if args.quick else 3)
+    fps_list = [float(f) for f in args.fps.split(",") if f]
+    if args.quick and args.fps == "60,120,240,480":
+        fps_list = [60.0, 480.0]
+
+    results = []
+    ratios = []
+    print(f"{'row':28s} {'method':12s} {'n':>3s} {'axis med':>8s} {'axis mean':>9s} {'om% med':>8s} "
+          f"{'om% mean':>8s} {'succ%':>6s} {'time/est':>9s}")
+    for ri, (texture, rps, radius, n_events) in enumerate(rows):
+        name = f"{texture} {rps:g}rps r{radius:g} {n_events // 1000}k"
+        per = {"fast": [], "paper": []}
+        per.update({f"image@{f:g}fps": [] for f in fps_list})
+        same_fast, same_paper = [], []
+        for s in range(seqs):
+            rng = np.random.default_rng([args.seed, ri, s])
+            axis = random_axis(rng)
+            events, truth = sim.spinning_ball(texture, rps=rps, axis=axis, radius_px=radius, width=WIDTH,
+                                              height=HEIGHT, n_events=n_events, seed=int(rng.integers(1 << 30)),
+                                              threshold=0.15)
+            kw = dict(velocity=truth["velocity_px_s"], sensor_size=(WIDTH, HEIGHT))
+            t = time.perf_counter()
+            est = spin.estimate_spin(events, truth["center"], truth["radius_px"], **kw)
+            dt_fast = time.perf_counter() - t
+            per["fast"].append((*errors(est.axis, est.omega_rad_s, truth), dt_fast))
+            if ri in paper_rows and s < paper_seqs:
+                t = time.perf_counter()
+                est = spin.estimate_spin(events, truth["center"], truth["radius_px"], method="paper", **kw)
+                dt_paper = time.perf_counter() - t
+                per["paper"].append((*errors(est.axis, est.omega_rad_s, truth), dt_paper))
+                same_fast.append(dt_fast)
+                same_paper.append(dt_paper)
+            if s < image_seqs:
+                for f in fps_list:
+                    f0, f1, c0, c1 = frame_pair(texture, truth, f)
+                    t = time.perf_counter()
+                    w = estimate_image_pair(f0, f1, 1.0 / f, c0, c1)
+                    dt = time.perf_counter() - t
+                    om = float(np.linalg.norm(w))
+                    per[f"image@{f:g}fps"].append((*errors(w / max(om, 1e-12), om, truth), dt))
+        for method, vals in per.items():
+            if not vals:
+                continue
+            summ = summarise(vals)
+            results.append({"row": name, "method": method, **summ})
+            print(f"{name:28s} {method:12s} {summ['n']:3d} {summ['axis_median_deg']:8.2f} {summ['axis_mean_deg']:9.2f} "
+                  f"{summ['omega_median_pct']:8.2f} {summ['omega_mean_pct']:8.2f} {summ['success_pct']:6.1f} "
+                  f"{summ['time_s'] * 1e3:7.0f}ms", flush=True)
+        if same_paper:
+            ratio = float(np.sum(same_paper) / np.sum(same_fast))
+            ratios.append(ratio)
+            print(f"{name:28s} speed ratio paper/fast on the same {len(same_paper)} window(s): {ratio:.0f}x", flush=True)
+    if ratios:
+        print(f"speed ratio paper/fast: median {np.median(ratios):.0f}x over {len(ratios)} row(s)")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"results": results, "speed_ratios": ratios}, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
