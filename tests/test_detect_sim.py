@@ -64,3 +64,42 @@ def test_noise_and_hot_pixels_alone_give_an_empty_track():
     ev, _ = noise_events(W, H, 0, 200_000, np.random.default_rng(5), rate_hz_per_px=5.0, hot_pixels=40)
     tr = track_ball(ev, width=W, height=H)
     assert len(tr) == 0
+
+
+def _scene_events(objects, duration_s, seed):
+    from sim.esim import SensorState, merge, simulate
+    from sim.scene import Camera, Scene, court_background
+
+    rng = np.random.default_rng(seed)
+    cam = Camera(W, H)
+    scene = Scene(cam, objects(cam, rng), background=court_background(W, H, rng))
+    ev = simulate(scene, SensorState.new(W, H, rng), 0.0, duration_s)
+    noise, _ = noise_events(W, H, 0, int(duration_s * 1e6), rng, rate_hz_per_px=1.0, hot_pixels=15)
+    return cam, scene, merge(ev, noise)
+
+
+def _player():
+    from sim.scene import Player
+
+    return Player(x0=330.0, y0=310.0, vx=-400.0, height_px=220.0)
+
+
+def test_ignores_a_player_like_distractor():
+    from sim.balls import make_ball
+    from sim.rotation import random_rotation
+
+    def objects(cam, rng):
+        ball = make_ball(cam, texture="volleyball", radius_px=12, center_px=(20.0, 90.0),
+                         velocity_px_s=(5000.0, 1200.0), accel_px_s2=(0.0, 3000.0), axis=(0, 1, 0),
+                         omega_rad_s=250.0, R0=random_rotation(rng))
+        return [_player(), ball]
+
+    cam, scene, ev = _scene_events(objects, 0.06, 6)
+    tr = track_ball(ev, width=W, height=H)
+    assert len(tr.flight_ids()) == 1 and len(tr) >= 25
+    truth = scene.objects[1].circle(cam, tr.t_us * 1e-6)
+    err = np.hypot(tr.cx - truth[:, 0], tr.cy - truth[:, 1])
+    assert np.median(err) < 0.5 and err.max() < 1.5
+
+    _, _, ev_player = _scene_events(lambda cam, rng: [_player()], 0.06, 7)
+    assert len(track_ball(ev_player, width=W, height=H)) == 0
