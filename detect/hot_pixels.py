@@ -9,7 +9,6 @@ its 8 neighbours.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 
@@ -34,17 +33,29 @@ class HotPixelMap:
         self.decay, self.min_count, self.ratio = float(decay), float(min_count), float(ratio)
         self.counts = np.zeros((self.height, self.width), np.float32)
         self.hot = np.zeros(self.height * self.width, bool)
+        self._cand = np.zeros(0, np.int64)
 
-    def update(self, x: np.ndarray, y: np.ndarray) -> None:
-        """Add one block's events (pixel columns ``x``, rows ``y``) and refresh the mask."""
-        idx = y.astype(np.int64) * self.width + x.astype(np.int64)
-        block = np.bincount(idx, minlength=self.width * self.height).astype(np.float32)
-        self.counts *= self.decay
-        self.counts += block.reshape(self.height, self.width)
-        nb = cv2.boxFilter(self.counts, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        nb_mean = (nb - self.counts) / 8.0
-        self.hot = ((self.counts >= self.min_count) & (self.counts >= self.ratio * nb_mean)).reshape(-1)
+    def update(self, pixel: np.ndarray) -> None:
+        """Add one block's events (flat pixel indices ``y * width + x``) and refresh the mask."""
+        flat = self.counts.reshape(-1)
+        flat *= self.decay
+        flat += np.bincount(pixel, minlength=flat.size)
+        self.hot[self._cand] = False
+        # only pixels busy enough can be hot: test their 8 neighbours sparsely
+        cand = np.flatnonzero(flat >= self.min_count)
+        self._cand = cand
+        if len(cand) == 0:
+            return
+        cy, cx = np.divmod(cand, self.width)
+        nb = np.zeros(len(cand), np.float32)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    yy, xx = cy + dy, cx + dx
+                    ok = (yy >= 0) & (yy < self.height) & (xx >= 0) & (xx < self.width)
+                    nb[ok] += flat[yy[ok] * self.width + xx[ok]]
+        self.hot[cand[flat[cand] >= self.ratio * nb / 8.0]] = True
 
-    def keep(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Mask of events not on a hot pixel."""
-        return ~self.hot[y.astype(np.int64) * self.width + x.astype(np.int64)]
+    def keep(self, pixel: np.ndarray) -> np.ndarray:
+        """Mask of events (flat pixel indices) not on a hot pixel."""
+        return ~self.hot[pixel]

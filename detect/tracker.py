@@ -167,8 +167,9 @@ class BallTracker:
         y = ev["y"].astype(np.int32)
         t = ev["t"]
         if self._hot is not None:
-            self._hot.update(x, y)
-            keep = self._hot.keep(x, y)
+            pixel = y * self.width + x
+            self._hot.update(pixel)
+            keep = self._hot.keep(pixel)
             x, y, t = x[keep], y[keep], t[keep]
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
         idx = np.searchsorted(t, bounds, side="left")
@@ -185,13 +186,12 @@ class BallTracker:
         if self._kf is None:
             self._search_slice(t, x, y, m)
 
-    def _fit(self, t, x, y, m, center0, velocity, r_range, sel=None) -> CircleFit | None:
+    def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
+        """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s)."""
         dt_s = (t - m) * 1e-6
         xc = x - velocity[0] * dt_s
         yc = y - velocity[1] * dt_s
         border = (x == 0) | (y == 0) | (x == self.width - 1) | (y == self.height - 1)
-        if sel is not None:
-            xc, yc, border = xc[sel], yc[sel], border[sel]
         good = density_filter(xc, yc, min_neighbours=1)
         if center0 is None:
             if not good.any():
@@ -208,12 +208,17 @@ class BallTracker:
             return
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
         reach = 1.4 * r + 4.0 + 3.0 * sig
+        # a box around the swept circle first (cheap on all events), then the moving circle
+        hx = reach + abs(vx) * self.slice_us * 0.5e-6
+        hy = reach + abs(vy) * self.slice_us * 0.5e-6
+        box = (x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy)
+        t, x, y = t[box], x[box], y[box]
         dt_s = (t - m) * 1e-6
         dx = x - vx * dt_s - cx
         dy = y - vy * dt_s - cy
         sel = dx * dx + dy * dy < reach * reach
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
-        fit = self._fit(t, x, y, m, (cx, cy), (vx, vy), r_rng, sel) if sel.sum() >= 12 else None
+        fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
         if fit is None or fit.score < self.min_score:
             self._misses += 1
             if self._misses >= self.max_misses:
@@ -239,8 +244,9 @@ class BallTracker:
         for x0, y0, x1, y1 in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
                                               r_range=self.r_range):
             sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
-            v0 = estimate_velocity(x[sel].astype(np.float64), y[sel].astype(np.float64), t[sel])
-            fit = self._fit(t, x, y, m, None, v0, self.r_range, sel)
+            ts, xs, ys = t[sel], x[sel], y[sel]
+            v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
+            fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
             if fit is not None and fit.score >= self.min_score and (best is None or fit.score > best[0].score):
                 best = (fit, v0)
         if best is None:

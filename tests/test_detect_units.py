@@ -116,8 +116,8 @@ def test_hot_pixel_map_flags_lonely_busy_pixels_only():
         bx, by = _disk(rng, 4000, 100, 100, 15)
         x = np.r_[np.rint(bx), np.full(20, 200)].astype(int)
         y = np.r_[np.rint(by), np.full(20, 50)].astype(int)
-        hm.update(x, y)
-    keep = hm.keep(np.array([200, 100, 105]), np.array([50, 100, 95]))
+        hm.update(y * W + x)
+    keep = hm.keep(np.array([50, 100, 95]) * W + np.array([200, 100, 105]))
     assert keep.tolist() == [False, True, True]
 
 
