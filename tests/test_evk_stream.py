@@ -183,3 +183,14 @@ def test_lost_data_shows_as_time_base_jump(tmp_path, shared_raw_dir):
     assert stats.time_jumps >= 1 and not stats.lossless
     _, clean, _, _ = record_fake(tmp_path, src, decode=False)
     assert clean.time_jumps == 0
+
+
+def test_cli_records_through_the_fake(tmp_path, shared_raw_dir, capsys):
+    from capture.evk.__main__ import main
+
+    src = shared_raw_dir / ROS
+    out = tmp_path / "cli.raw"
+    assert main(["record", str(out), "--fake", str(src), "--pace", "max", "--bias", "fo=5", "--erc", "2e7"]) == 0
+    assert payload_of(out) == payload_of(src)
+    assert main(["record", str(out), "--fake", str(src), "--bias", "fo=99"]) == 1
+    assert "bias_fo offset 99 is outside" in capsys.readouterr().err
