@@ -162,7 +162,8 @@ def main() -> None:
             cam.queue_bytes = 1 << 31
             with create_session(tmp / "live.zarr", width=WIDTH, height=HEIGHT) as sess:
                 st = evk.record(cam, tmp / "rec2.raw", on_batch=lambda e, t: sess.append_events(e))
-        print(f"  stream lasted {stream_s:.2f} s; recording + decoding done after {st.duration_s:.2f} s "
+        print(f"  stream lasted {stream_s:.2f} s; all raw bytes on disk after {st.stream_s:.2f} s; "
+              f"decoding caught up after {st.duration_s:.2f} s "
               f"-> decode+store {mev / st.duration_s:.1f} Mev/s, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev; "
               f"queue peak {st.queue_peak_bytes / 1e6:.0f} MB; dropped {st.dropped_bytes} B; "
               f"events {st.n_events / 1e6:.1f} M")
