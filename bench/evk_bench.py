@@ -151,7 +151,7 @@ def main() -> None:
         dur = st.duration_s - 0.1  # minus the final 100 ms end-of-stream timeout
         print(f"  {mev / dur:7.1f} Mev/s  {st.payload_bytes / dur / 1e6:6.0f} MB/s  "
               f"CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev  dropped {st.dropped_bytes} B  time jumps {st.time_jumps}  "
-              f"full reads {st.n_full_reads}/{st.n_reads}")
+              f"full reads {st.n_full_reads}/{st.n_reads}  gap between reads {st.read_gap_us:.1f} us")
         print(f"  peer (same bytes memory -> disk): {peer:.0f} MB/s; recorder/peer = "
               f"{st.payload_bytes / dur / 1e6 / peer:.2f}")
         assert (tmp / "rec.raw").stat().st_size == st.header_bytes + len(payload)
@@ -170,7 +170,8 @@ def main() -> None:
         with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded")) as cam:
             st = evk.record(cam, tmp / "rec3.raw")
         print(f"  raw only, same real-time feed: done after {st.duration_s:.2f} s, queue peak "
-              f"{st.queue_peak_bytes / 1e6:.1f} MB, dropped {st.dropped_bytes} B, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev")
+              f"{st.queue_peak_bytes / 1e6:.1f} MB, dropped {st.dropped_bytes} B, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev, "
+              f"gap between reads {st.read_gap_us:.1f} us")
 
         print("\n4. catch-up: decode the recorded RAW (alone, then into a session) afterwards")
         t, c = time.perf_counter(), time.process_time()

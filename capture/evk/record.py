@@ -45,6 +45,8 @@ class RecordStats:
         side may be overflowing), reads that timed out (idle).
     queue_peak_bytes : int
         Highest queue occupancy.
+    read_gap_us : float
+        Mean time between two data reads with no read pending (pyusb has one at a time).
     stream_s : float
         Wall-clock time until streaming ended and every byte was on disk.
     duration_s, cpu_s : float
@@ -71,6 +73,7 @@ class RecordStats:
     n_full_reads: int = 0
     n_timeouts: int = 0
     queue_peak_bytes: int = 0
+    read_gap_us: float = 0.0
     stream_s: float = 0.0
     duration_s: float = 0.0
     cpu_s: float = 0.0
@@ -221,10 +224,12 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                     if monitor is not None:
                         monitor.reset()
                 elif item is not None:
-                    f.write(item)
-                    stats.payload_bytes += len(item)
+                    data = item.data
+                    _write_all(f, data)
+                    stats.payload_bytes += item.nbytes
                     if monitor is not None:
-                        monitor.feed(item)
+                        monitor.feed(data)
+                    reader.release(item)
                     if decode is not None:
                         decode.written(stats.payload_bytes)
                 if not stats.stop_reason:
@@ -254,6 +259,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                 stats.n_timeouts = reader.n_timeouts
                 stats.dropped_bytes, stats.overflows = reader.dropped_bytes, reader.n_overflows
                 stats.queue_peak_bytes = reader.queue.peak_bytes
+                stats.read_gap_us = reader.gap_s / max(reader.n_reads, 1) * 1e6
             if monitor is not None:
                 stats.time_jumps = monitor.jumps
     if decode is not None and decode.error is not None:
@@ -275,6 +281,12 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         log.warning("recording %s: %d bytes dropped (queue overflow), %d time-base jumps",
                     raw_path, stats.dropped_bytes, stats.time_jumps)
     return stats
+
+
+def _write_all(f, data: memoryview) -> None:
+    """Unbuffered writes may be partial: loop until every byte is in the file."""
+    while len(data):
+        data = data[f.write(data):]
 
 
 def _count(stats: RecordStats, events, triggers) -> None:
