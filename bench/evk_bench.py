@@ -30,6 +30,7 @@ import usb.core
 from capture import evk, raw
 from capture.events import EVENT_DTYPE
 from capture.evk.fake import EP_DATA, FakeEVK
+from capture.evk.stream import Chunk
 from capture.session import create_session
 
 WIDTH, HEIGHT = 1280, 720
@@ -100,8 +101,9 @@ def reader_throughput(src: Path, read_bytes: int, packet_bytes) -> tuple[float, 
         q = cam.reader.queue
         n = 0
         while (item := q.get(0.05)) is not q.EOF:
-            if isinstance(item, bytes):
-                n += len(item)
+            if isinstance(item, Chunk):
+                n += item.nbytes
+                cam.reader.release(item)
         dt = time.perf_counter() - t - 0.1  # the final read waits one 100 ms timeout
         reads = cam.reader.n_reads
         cam.stop()
