@@ -122,15 +122,14 @@ def test_faults_mid_stream_keep_received_data(tmp_path, shared_raw_dir, ros_chun
 def test_queue_overflow_is_counted_and_located(tmp_path, shared_raw_dir):
     src = shared_raw_dir / SAMPLE
     original = payload_of(src)
-
-    def slow(events, triggers):
-        threading.Event().wait(0.01)
-
     fake = FakeEVK(src, packet_bytes=8192)
     with evk.open(backend=fake) as cam:
-        cam.queue_bytes = 32768
-        stats = evk.record(cam, tmp_path / "rec.raw", on_batch=slow)
+        cam.queue_bytes = 100_000
+        cam.start()
+        cam.reader.join(10)  # the reader reads the whole file before anyone consumes
+        stats = evk.record(cam, tmp_path / "rec.raw")
     assert stats.dropped_bytes > 0 and stats.overflows > 0 and not stats.lossless
+    assert stats.payload_bytes <= 100_000 and stats.queue_peak_bytes <= 100_000
     assert sum(n for _, n in stats.gaps) == stats.dropped_bytes
     assert stats.payload_bytes + stats.dropped_bytes == len(original)
     written = payload_of(tmp_path / "rec.raw")
@@ -141,6 +140,36 @@ def test_queue_overflow_is_counted_and_located(tmp_path, shared_raw_dir):
         pos = offset
     rebuilt.append(original[src_pos:])
     assert b"".join(rebuilt) == written
+
+
+def test_slow_consumer_lags_but_loses_nothing(tmp_path, shared_raw_dir, ros_chunks):
+    src = shared_raw_dir / ROS
+    got = []
+
+    def slow(events, triggers):
+        threading.Event().wait(0.05)  # 105 packets x 50 ms: far slower than the stream
+        got.append(events)
+
+    with evk.open(backend=FakeEVK(src, pace="recorded", speed=4.0, packet_bytes=ros_chunks)) as cam:
+        cam.queue_bytes = 65536  # far less than the file: decoding must not hold up the USB path
+        stats = evk.record(cam, tmp_path / "rec.raw", on_batch=slow)
+    assert stats.dropped_bytes == 0 and stats.lossless
+    assert np.array_equal(np.concatenate(got), raw.read(src).events)
+    assert stats.duration_s >= stats.stream_s
+
+
+def test_on_batch_error_stops_and_keeps_the_file(tmp_path, shared_raw_dir, ros_chunks):
+    src = shared_raw_dir / ROS
+
+    def boom(events, triggers):
+        raise RuntimeError("analysis failed")
+
+    with evk.open(backend=FakeEVK(src, pace="recorded", speed=0.5, packet_bytes=ros_chunks)) as cam:
+        with pytest.raises(RuntimeError, match="analysis failed"):
+            evk.record(cam, tmp_path / "rec.raw", on_batch=boom, max_duration_s=5)
+        assert not cam.is_streaming
+    kept = payload_of(tmp_path / "rec.raw")
+    assert 0 < len(kept) < len(payload_of(src)) and kept == payload_of(src)[: len(kept)]
 
 
 def test_lost_data_shows_as_time_base_jump(tmp_path, shared_raw_dir):
@@ -154,3 +183,14 @@ def test_lost_data_shows_as_time_base_jump(tmp_path, shared_raw_dir):
     assert stats.time_jumps >= 1 and not stats.lossless
     _, clean, _, _ = record_fake(tmp_path, src, decode=False)
     assert clean.time_jumps == 0
+
+
+def test_cli_records_through_the_fake(tmp_path, shared_raw_dir, capsys):
+    from capture.evk.__main__ import main
+
+    src = shared_raw_dir / ROS
+    out = tmp_path / "cli.raw"
+    assert main(["record", str(out), "--fake", str(src), "--pace", "max", "--bias", "fo=5", "--erc", "2e7"]) == 0
+    assert payload_of(out) == payload_of(src)
+    assert main(["record", str(out), "--fake", str(src), "--bias", "fo=99"]) == 1
+    assert "bias_fo offset 99 is outside" in capsys.readouterr().err

@@ -9,6 +9,7 @@ then the sensor's bring-up sequences.
 
 from __future__ import annotations
 
+import errno
 import logging
 import threading
 from dataclasses import dataclass, field
@@ -136,7 +137,8 @@ class _UsbSession:
             except NotImplementedError:
                 pass
         except usb.core.USBError as exc:
-            raise usb_error(exc, f"detaching the kernel driver of {where}") from exc
+            if exc.errno != errno.ENOSYS:  # "not supported" on macOS / Windows: nothing to detach
+                raise usb_error(exc, f"detaching the kernel driver of {where}") from exc
         try:
             usb.util.claim_interface(dev, self.interface)
         except usb.core.USBError as exc:
@@ -146,6 +148,8 @@ class _UsbSession:
             raise err from exc
         self.claimed = True
         try:
+            # Never SET_CONFIGURATION (the HAL does not; on Linux it could disturb a
+            # configured device [uncertain whether harmless]).
             if not quirk:
                 dev.set_interface_altsetting(interface=self.interface, alternate_setting=alt)
             if dev.speed is not None and dev.speed < LIBUSB_SPEED_SUPER:
@@ -154,6 +158,8 @@ class _UsbSession:
             self.link = tz.TzLink(dev, ep_in, ep_out, sleep_us=sleep, name=where)
             self.firmware = self._optional(lambda: self.link.get_u32(tz.PROP_RELEASE_VERSION))
             self.build_date = self._optional(self.link.build_date)
+            # [uncertain] An unreadable version is not refused (the HAL ignores the read
+            # failure); a readable one below 3.8.0 is, as the HAL does.
             if self.firmware is not None and self.firmware < MIN_FIRMWARE:
                 raise EvkFirmwareError(
                     f"{where}: firmware {_version_str(self.firmware)} is no longer supported "

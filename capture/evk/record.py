@@ -45,8 +45,12 @@ class RecordStats:
         side may be overflowing), reads that timed out (idle).
     queue_peak_bytes : int
         Highest queue occupancy.
+    read_gap_us : float
+        Mean time between two data reads with no read pending (pyusb has one at a time).
+    stream_s : float
+        Wall-clock time until streaming ended and every byte was on disk.
     duration_s, cpu_s : float
-        Wall-clock and process CPU time of the recording.
+        Wall-clock and process CPU time until ``record`` returned (decoding caught up).
     stop_reason : str
         ``"stop"``, ``"duration"``, ``"end_of_stream"`` or ``"error"``.
     error : str or None
@@ -69,6 +73,8 @@ class RecordStats:
     n_full_reads: int = 0
     n_timeouts: int = 0
     queue_peak_bytes: int = 0
+    read_gap_us: float = 0.0
+    stream_s: float = 0.0
     duration_s: float = 0.0
     cpu_s: float = 0.0
     stop_reason: str = ""
@@ -95,15 +101,73 @@ def _endianness(camera) -> str:
     return "legacy" if camera.info.format == "EVT21" else "little"
 
 
+class _FileDecoder(threading.Thread):
+    """Decodes the RAW file while it is being written (tailing it), calling ``on_batch``.
+
+    Decoding never holds up the USB path: the writer only appends bytes, this thread reads
+    them back (page cache) at its own pace and catches up after the stream ends.
+    """
+
+    READ_BYTES = 8 << 20
+
+    def __init__(self, path: Path, offset: int, decoder: StreamDecoder, on_batch, stats: RecordStats):
+        super().__init__(name="evk-decoder", daemon=True)
+        self._file = path.open("rb")
+        self._file.seek(offset)
+        self._decoder = decoder
+        self._on_batch = on_batch
+        self._stats = stats
+        self._cond = threading.Condition()
+        self._available = 0
+        self._closed = False
+        self.error: BaseException | None = None
+
+    def written(self, payload_bytes: int) -> None:
+        """The writer has appended up to ``payload_bytes`` of payload."""
+        with self._cond:
+            self._available = payload_bytes
+            self._cond.notify()
+
+    def close_input(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+
+    def run(self) -> None:
+        pos = 0
+        try:
+            while True:
+                with self._cond:
+                    while pos >= self._available and not self._closed:
+                        self._cond.wait(0.1)
+                    if pos >= self._available and self._closed:
+                        break
+                    end = self._available
+                data = self._file.read(min(end - pos, self.READ_BYTES))
+                pos += len(data)
+                events, triggers = self._decoder.decode(data)
+                if len(events) or len(triggers):
+                    _count(self._stats, events, triggers)
+                    self._on_batch(events, triggers)
+            self._decoder.finish()
+        except BaseException as exc:  # noqa: BLE001 - re-raised by record()
+            self.error = exc
+        finally:
+            self._file.close()
+
+
 def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = None,
            max_duration_s: float | None = None) -> RecordStats:
-    """Stream from ``camera`` into a RAW file until stopped; decode on the fly if asked.
+    """Stream from ``camera`` into a RAW file until stopped; decode it on the fly if asked.
 
-    The reader thread (started here if the camera is not streaming yet) only queues bytes;
-    this thread writes every byte, unmodified, after a RAW header, and, when ``on_batch``
-    is given, decodes them with :class:`capture.raw.StreamDecoder` and calls
-    ``on_batch(events, triggers)`` (EVENT_DTYPE / TRIGGER_DTYPE arrays) for each non-empty
-    batch. Streaming is stopped when this returns.
+    Three threads: the camera's reader thread (started here if the camera is not streaming
+    yet) only queues USB bytes; this thread writes every byte, unmodified, after a RAW
+    header; when ``on_batch`` is given a decoder thread reads the file back as it grows,
+    decodes it with :class:`capture.raw.StreamDecoder` and calls ``on_batch(events,
+    triggers)`` (EVENT_DTYPE / TRIGGER_DTYPE arrays, from that thread) for each non-empty
+    batch. A slow decoder or ``on_batch`` therefore never causes USB drops: it lags and
+    catches up after the stream ends, and ``record`` returns once it has. Streaming is
+    stopped when this returns.
 
     Parameters
     ----------
@@ -113,11 +177,12 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         Output RAW file (overwritten).
     on_batch : callable, optional
         ``on_batch(events, triggers)``; ``None`` records raw bytes only (decode later with
-        ``capture.raw``), which is the cheapest mode.
+        ``capture.raw``), the cheapest mode. An exception from it stops the recording and
+        is re-raised (the RAW file is kept).
     stop : threading.Event, optional
         Set it (from any thread) to end the recording.
     max_duration_s : float, optional
-        Wall-clock limit, seconds.
+        Wall-clock limit on streaming, seconds.
 
     Returns
     -------
@@ -129,24 +194,27 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
     ------
     EvkConnectionError
         Stall, unplug or USB error mid-stream. Everything received before it is in the RAW
-        file (closed properly); the exception's ``stats`` holds the :class:`RecordStats`.
+        file (closed properly) and decoded; the exception's ``stats`` holds the
+        :class:`RecordStats`.
     """
     raw_path = Path(raw_path)
     stats = RecordStats(raw_path=raw_path)
-    decoder = None
-    if on_batch is not None:
-        i = camera.info
-        decoder = StreamDecoder(i.format, endianness=_endianness(camera), width=i.width, height=i.height)
     monitor = TimeHighMonitor() if camera.info.format == "EVT3" else None
     header = _header(camera)
     t0, c0 = time.monotonic(), time.process_time()
+    decode = None
     with raw_path.open("wb", buffering=0) as f:
         f.write(header)
         stats.header_bytes = len(header)
-        camera.start()
-        reader = camera.reader
-        queue = reader.queue
+        if on_batch is not None:
+            i = camera.info
+            decoder = StreamDecoder(i.format, endianness=_endianness(camera), width=i.width, height=i.height)
+            decode = _FileDecoder(raw_path, len(header), decoder, on_batch, stats)
+            decode.start()
         try:
+            camera.start()
+            reader = camera.reader
+            queue = reader.queue
             while True:
                 item = queue.get(QUEUE_POLL_S)
                 if item is ByteQueue.EOF:
@@ -156,20 +224,21 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                     if monitor is not None:
                         monitor.reset()
                 elif item is not None:
-                    f.write(item)
-                    stats.payload_bytes += len(item)
+                    data = item.data
+                    _write_all(f, data)
+                    stats.payload_bytes += item.nbytes
                     if monitor is not None:
-                        monitor.feed(item)
-                    if decoder is not None:
-                        events, triggers = decoder.decode(item)
-                        if len(events) or len(triggers):
-                            _count(stats, events, triggers)
-                            on_batch(events, triggers)
+                        monitor.feed(data)
+                    reader.release(item)
+                    if decode is not None:
+                        decode.written(stats.payload_bytes)
                 if not stats.stop_reason:
                     if stop is not None and stop.is_set():
                         stats.stop_reason = "stop"
                     elif max_duration_s is not None and time.monotonic() - t0 >= max_duration_s:
                         stats.stop_reason = "duration"
+                    elif decode is not None and decode.error is not None:
+                        stats.stop_reason = "error"
                     if stats.stop_reason:
                         camera.stop()  # stop sequence, then the reader ends; keep draining
         finally:
@@ -177,17 +246,25 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                 camera.stop()
             except EvkError as exc:
                 log.warning("stopping the camera after recording failed: %s", exc)
+            stats.stream_s = time.monotonic() - t0
+            if decode is not None:
+                decode.close_input()
+                decode.join()
+                stats.decoder_stats = decoder.stats
             stats.duration_s = time.monotonic() - t0
             stats.cpu_s = time.process_time() - c0
-            stats.n_reads, stats.n_full_reads = reader.n_reads, reader.n_full_reads
-            stats.n_timeouts = reader.n_timeouts
-            stats.dropped_bytes, stats.overflows = reader.dropped_bytes, reader.n_overflows
-            stats.queue_peak_bytes = queue.peak_bytes
+            reader = camera.reader
+            if reader is not None:
+                stats.n_reads, stats.n_full_reads = reader.n_reads, reader.n_full_reads
+                stats.n_timeouts = reader.n_timeouts
+                stats.dropped_bytes, stats.overflows = reader.dropped_bytes, reader.n_overflows
+                stats.queue_peak_bytes = reader.queue.peak_bytes
+                stats.read_gap_us = reader.gap_s / max(reader.n_reads, 1) * 1e6
             if monitor is not None:
                 stats.time_jumps = monitor.jumps
-            if decoder is not None:
-                decoder.finish()
-                stats.decoder_stats = decoder.stats
+    if decode is not None and decode.error is not None:
+        stats.error = f"on_batch/decoding failed: {decode.error!r}"
+        raise decode.error
     if reader.error is not None:
         stats.stop_reason = "error"
         stats.error = str(reader.error)
@@ -204,6 +281,12 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         log.warning("recording %s: %d bytes dropped (queue overflow), %d time-base jumps",
                     raw_path, stats.dropped_bytes, stats.time_jumps)
     return stats
+
+
+def _write_all(f, data: memoryview) -> None:
+    """Unbuffered writes may be partial: loop until every byte is in the file."""
+    while len(data):
+        data = data[f.write(data):]
 
 
 def _count(stats: RecordStats, events, triggers) -> None:

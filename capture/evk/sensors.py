@@ -120,6 +120,9 @@ class Imx636:
 
         Every value is checked against the HAL's recommended offset range before anything is
         written; the register gets ``0x11A10000 | clamp(default + offset, 0, 255)``.
+        [uncertain] The init sequence writes bias_diff with vdac_ctl = 0x50 and the Linux driver
+        sets scr_set for fo/hpf/refr; we follow the HAL's set path (vdac_ctl = 0, no scr_set),
+        whose analog effect is what Metavision users get.
         """
         values = _normalise_bias_names(named, IMX636_BIAS_OFFSET_RANGES)
         for name, offset in values.items():

@@ -180,7 +180,8 @@ POST_INIT_LIFO = (
 )
 
 # B21-B33: Gen41Erc::initialize (RMW field writes, in order). Leaves the ERC configured
-# but disabled (t_dropping_en = 0).
+# but disabled (t_dropping_en = 0). The 486 LUT registers are written by RMW as the HAL does,
+# not as ND's plain writes: twice the round trips, but no risk for the reserved bits.
 ERC_INIT = (
     ("RMW", 0x6000, 0, 0x3),  # B21 configuration start
     ("RMW", 0x6004, 1, 0x1),  # B22 cfg_event_delay_fifo_en <- 1

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import array
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import usb.core
@@ -31,8 +33,19 @@ class Gap:
     nbytes: int
 
 
+class Chunk(NamedTuple):
+    """``nbytes`` of stream data at the start of ``buffer`` (a pooled read buffer)."""
+
+    buffer: array.array
+    nbytes: int
+
+    @property
+    def data(self) -> memoryview:
+        return memoryview(self.buffer)[: self.nbytes]
+
+
 class ByteQueue:
-    """FIFO of ``bytes`` chunks bounded by total size; never blocks the producer.
+    """FIFO of :class:`Chunk` items bounded by total bytes; never blocks the producer.
 
     Parameters
     ----------
@@ -50,13 +63,13 @@ class ByteQueue:
         self._closed = False
         self.peak_bytes = 0
 
-    def put(self, chunk: bytes) -> bool:
+    def put(self, chunk: Chunk) -> bool:
         """Append ``chunk``; return False (and keep nothing) if it does not fit."""
         with self._cond:
-            if self._bytes + len(chunk) > self.capacity_bytes:
+            if self._bytes + chunk.nbytes > self.capacity_bytes:
                 return False
             self._items.append(chunk)
-            self._bytes += len(chunk)
+            self._bytes += chunk.nbytes
             self.peak_bytes = max(self.peak_bytes, self._bytes)
             self._cond.notify()
             return True
@@ -77,7 +90,7 @@ class ByteQueue:
             self._cond.notify_all()
 
     def get(self, timeout_s: float):
-        """Next chunk or :class:`Gap`; ``None`` after ``timeout_s`` without data; :attr:`EOF`
+        """Next :class:`Chunk` or :class:`Gap`; ``None`` after ``timeout_s`` without data; :attr:`EOF`
         when closed and empty."""
         with self._cond:
             if not self._items and not self._closed:
@@ -85,13 +98,17 @@ class ByteQueue:
             if self._items:
                 item = self._items.popleft()
                 if not isinstance(item, Gap):
-                    self._bytes -= len(item)
+                    self._bytes -= item.nbytes
                 return item
             return self.EOF if self._closed else None
 
 
 class Reader(threading.Thread):
     """Reader thread: back-to-back bulk reads on the data endpoint into a :class:`ByteQueue`.
+
+    Reads go straight into pooled buffers (no copy), so the endpoint is without a pending
+    request only for pyusb's call overhead between reads; the consumer hands each buffer
+    back with :meth:`release` once written. :attr:`gap_s` totals that request-less time.
 
     Timeouts without data are normal (idle sensor) and only counted. Any other USB error
     (stall, unplug, I/O) ends the thread with :attr:`error` set; everything read before it
@@ -134,6 +151,23 @@ class Reader(threading.Thread):
         self.n_overflows = 0
         self.error: EvkError | None = None
         self.end_of_stream = False
+        self.gap_s = 0.0
+        self._free: deque = deque()
+        self._n_buffers = 0
+        self._max_buffers = max(2, self.queue.capacity_bytes // self.read_bytes + 1)
+
+    def _buffer(self) -> array.array | None:
+        try:
+            return self._free.pop()
+        except IndexError:
+            if self._n_buffers >= self._max_buffers:
+                return None
+            self._n_buffers += 1
+            return array.array("B", bytes(self.read_bytes))
+
+    def release(self, chunk: Chunk) -> None:
+        """Give a consumed chunk's buffer back to the pool (any thread)."""
+        self._free.append(chunk.buffer)
 
     @staticmethod
     def drain(dev, ep: int, max_packet: int) -> int:
@@ -153,15 +187,21 @@ class Reader(threading.Thread):
         return n
 
     def run(self) -> None:
-        buf = array.array("B", bytes(self.read_bytes))
-        view = memoryview(buf)
         read, ep, timeout, size = self.dev.read, self.ep, self.timeout_ms, self.read_bytes
-        queue, eos = self.queue, self._eos
+        queue, eos, clock = self.queue, self._eos, time.perf_counter
+        scratch = array.array("B", bytes(size))  # used only when every pooled buffer is queued
+        t_done = None
         try:
+            buf = self._buffer()
             while not self._stop_event.is_set():
+                target = buf if buf is not None else scratch
+                t_call = clock()
+                if t_done is not None:
+                    self.gap_s += t_call - t_done
                 try:
-                    n = read(ep, buf, timeout)
+                    n = read(ep, target, timeout)
                 except usb.core.USBTimeoutError:
+                    t_done = None
                     self.n_timeouts += 1
                     if eos is not None and eos():
                         self.end_of_stream = True
@@ -170,15 +210,23 @@ class Reader(threading.Thread):
                 except usb.core.USBError as exc:
                     self.error = usb_error(exc, f"reading the data endpoint of {self.camera_name}")
                     break
+                t_done = clock()
                 self.n_reads += 1
-                if n:
-                    self.bytes_read += n
-                    if n == size:
-                        self.n_full_reads += 1
-                    if not queue.put(view[:n].tobytes()):
-                        self.dropped_bytes += n
-                        self.n_overflows += 1
-                        queue.put_gap(n)
+                if not n:
+                    if buf is None:
+                        buf = self._buffer()
+                    continue
+                self.bytes_read += n
+                if n == size:
+                    self.n_full_reads += 1
+                if buf is not None and queue.put(Chunk(buf, n)):
+                    buf = self._buffer()
+                else:  # queue full: the data is lost, counted and marked
+                    self.dropped_bytes += n
+                    self.n_overflows += 1
+                    queue.put_gap(n)
+                    if buf is None:
+                        buf = self._buffer()
         except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
             self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
         finally:

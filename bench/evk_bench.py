@@ -1,0 +1,195 @@
+"""Live-capture throughput through the fake EVK (run on demand; prints numbers, asserts nothing).
+
+    PYTHONPATH=. python bench/evk_bench.py [--mev 60] [--rate-mev-s 100]
+
+Measures, on this machine, with a synthetic EVT3 stream (half the events in short horizontal
+runs as from moving edges, half isolated; about 3 bytes/event):
+
+1. pyusb's one-pending-read cost: the pyusb Python layer's time per ``dev.read`` call, and
+   reader throughput versus read size, for large device packets and for short packets (one
+   host read per device packet, as with the EVK4's ~7 KiB transfers in the shared recording);
+2. raw recording (``capture.evk.record`` with no decoding) from the fake at max pace to disk:
+   Mev/s, MB/s, CPU s per Mev, drops; peer: writing the same bytes from memory to disk;
+3. raw + live decoding into the session store, fed in real time (``pace="recorded"``): whether
+   decoding keeps up, how far behind it gets (queue peak) and when it has caught up;
+4. decoding the RAW file into a session after the recording (catch-up path).
+
+CPU times are process CPU (all threads, the fake's emulation included).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import usb.core
+
+from capture import evk, raw
+from capture.events import EVENT_DTYPE
+from capture.evk.fake import EP_DATA, FakeEVK
+from capture.evk.stream import Chunk
+from capture.session import create_session
+
+WIDTH, HEIGHT = 1280, 720
+BLOCK_TH = 8  # one encoded block spans 8 TIME_HIGH periods (32.8 ms)
+
+
+def synth_block(rate_ev_s: float, seed: int = 0, run: int = 8) -> np.ndarray:
+    """Events for one block of BLOCK_TH * 4096 µs at ``rate_ev_s``."""
+    rng = np.random.default_rng(seed)
+    span = BLOCK_TH * 4096
+    n = int(rate_ev_s * span / 1e6)
+    n_runs = n // (2 * run)
+    t_runs = rng.integers(0, span, n_runs)
+    x0 = rng.integers(0, WIDTH - run, n_runs)
+    n_iso = n - n_runs * run
+    ev = np.empty(n, EVENT_DTYPE)
+    ev["t"] = np.concatenate([np.repeat(t_runs, run), rng.integers(0, span, n_iso)])
+    ev["x"] = np.concatenate([(x0[:, None] + np.arange(run)).ravel(), rng.integers(0, WIDTH, n_iso)])
+    ev["y"] = np.concatenate([np.repeat(rng.integers(0, HEIGHT, n_runs), run), rng.integers(0, HEIGHT, n_iso)])
+    ev["p"] = rng.integers(0, 2, n)
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    ev["t"] += 4096 * 256  # start on a TIME_HIGH boundary
+    return ev
+
+
+def synth_stream(path: Path, n_mev: float, rate_ev_s: float) -> int:
+    """Write a RAW file of ~n_mev Mev by tiling one encoded block with its TIME_HIGH words
+    advanced, so that the time base is continuous. Returns the number of events."""
+    block = synth_block(rate_ev_s)
+    words = np.frombuffer(raw.encode(block, width=WIDTH, height=HEIGHT), "<u2")
+    is_th = (words >> 12) == 0x8
+    reps = max(1, int(np.ceil(n_mev * 1e6 / len(block))))
+    with path.open("wb") as f:
+        f.write(raw.header_bytes("EVT3", width=WIDTH, height=HEIGHT))
+        for k in range(reps):
+            w = words.copy()
+            w[is_th] = 0x8000 | ((w[is_th] & 0xFFF) + k * BLOCK_TH) % 4096
+            f.write(w.tobytes())
+    return reps * len(block)
+
+
+def pyusb_call_overhead_us(n: int = 20000) -> float:
+    """µs per ``dev.read`` spent in pyusb's Python layer (backend answers instantly)."""
+
+    class Instant(FakeEVK):
+        def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+            return len(buff) if ep == EP_DATA else super().bulk_read(dev_handle, ep, intf, buff, timeout)
+
+    dev = usb.core.find(backend=Instant(None))
+    import array
+
+    buf = array.array("B", bytes(1 << 20))
+    dev.read(EP_DATA, buf, 100)
+    t = time.perf_counter()
+    for _ in range(n):
+        dev.read(EP_DATA, buf, 100)
+    return (time.perf_counter() - t) / n * 1e6
+
+
+def reader_throughput(src: Path, read_bytes: int, packet_bytes) -> tuple[float, float]:
+    """(MB/s, µs per read) of the reader thread alone (consumer discards), fake at max pace."""
+    fake = FakeEVK(src, packet_bytes=packet_bytes)
+    with evk.open(backend=fake) as cam:
+        cam.read_bytes = read_bytes
+        cam.queue_bytes = 1 << 34
+        t = time.perf_counter()
+        cam.start()
+        q = cam.reader.queue
+        n = 0
+        while (item := q.get(0.05)) is not q.EOF:
+            if isinstance(item, Chunk):
+                n += item.nbytes
+                cam.reader.release(item)
+        dt = time.perf_counter() - t - 0.1  # the final read waits one 100 ms timeout
+        reads = cam.reader.n_reads
+        cam.stop()
+    return n / dt / 1e6, dt / max(reads, 1) * 1e6
+
+
+def disk_peer(payload: bytes, out: Path) -> float:
+    """MB/s writing the same bytes from memory in 1 MiB chunks (the recorder's disk ceiling)."""
+    t = time.perf_counter()
+    with out.open("wb", buffering=0) as f:
+        for i in range(0, len(payload), 1 << 20):
+            f.write(payload[i:i + (1 << 20)])
+    return len(payload) / (time.perf_counter() - t) / 1e6
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mev", type=float, default=60.0, help="stream size, millions of events")
+    ap.add_argument("--rate-mev-s", type=float, default=100.0, help="stream's event rate (Mev/s)")
+    ap.add_argument("--dir", default=None, help="scratch directory (default: a temp dir)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
+        tmp = Path(tmp)
+        src = tmp / "stream.raw"
+        n_ev = synth_stream(src, args.mev, args.rate_mev_s * 1e6)
+        payload = src.read_bytes()
+        _, hdr = raw.parse_header(payload)
+        payload = payload[hdr:]
+        mev = n_ev / 1e6
+        print(f"stream: {mev:.1f} Mev, {len(payload) / 1e6:.0f} MB, {len(payload) / n_ev:.2f} B/ev, "
+              f"{args.rate_mev_s:.0f} Mev/s sensor rate ({len(payload) / n_ev * args.rate_mev_s:.0f} MB/s)")
+
+        print("\n1. pyusb one-pending-read cost")
+        print(f"  pyusb Python layer per dev.read: {pyusb_call_overhead_us():.1f} us")
+        for rb in (16 << 10, 128 << 10, 1 << 20, 4 << 20):
+            mbs, us = reader_throughput(src, rb, 131072)
+            print(f"  128 KiB device packets, read {rb >> 10:5d} KiB: {mbs:7.0f} MB/s  ({us:6.1f} us/read)")
+        mbs, us = reader_throughput(src, 1 << 20, 7340)
+        print(f"  ~7 KiB short device packets, read 1024 KiB: {mbs:7.0f} MB/s  ({us:6.1f} us/read; "
+              f"one read per device packet)")
+
+        print("\n2. raw recording, fake at max pace -> disk")
+        peer = disk_peer(payload, tmp / "peer.raw")
+        (tmp / "peer.raw").unlink()
+        with evk.open(backend=FakeEVK(src, packet_bytes=131072)) as cam:
+            st = evk.record(cam, tmp / "rec.raw")
+        dur = st.duration_s - 0.1  # minus the final 100 ms end-of-stream timeout
+        print(f"  {mev / dur:7.1f} Mev/s  {st.payload_bytes / dur / 1e6:6.0f} MB/s  "
+              f"CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev  dropped {st.dropped_bytes} B  time jumps {st.time_jumps}  "
+              f"full reads {st.n_full_reads}/{st.n_reads}  gap between reads {st.read_gap_us:.1f} us")
+        print(f"  peer (same bytes memory -> disk): {peer:.0f} MB/s; recorder/peer = "
+              f"{st.payload_bytes / dur / 1e6 / peer:.2f}")
+        assert (tmp / "rec.raw").stat().st_size == st.header_bytes + len(payload)
+
+        print(f"\n3. raw + live decode into the session store, fed in real time ({args.rate_mev_s:.0f} Mev/s)")
+        stream_s = len(payload) / (len(payload) / n_ev * args.rate_mev_s * 1e6)
+        with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded")) as cam:
+            cam.queue_bytes = 1 << 31
+            with create_session(tmp / "live.zarr", width=WIDTH, height=HEIGHT) as sess:
+                st = evk.record(cam, tmp / "rec2.raw", on_batch=lambda e, t: sess.append_events(e))
+        print(f"  stream lasted {stream_s:.2f} s; all raw bytes on disk after {st.stream_s:.2f} s; "
+              f"decoding caught up after {st.duration_s:.2f} s "
+              f"-> decode+store {mev / st.duration_s:.1f} Mev/s, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev; "
+              f"queue peak {st.queue_peak_bytes / 1e6:.0f} MB; dropped {st.dropped_bytes} B; "
+              f"events {st.n_events / 1e6:.1f} M")
+        with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded")) as cam:
+            st = evk.record(cam, tmp / "rec3.raw")
+        print(f"  raw only, same real-time feed: done after {st.duration_s:.2f} s, queue peak "
+              f"{st.queue_peak_bytes / 1e6:.1f} MB, dropped {st.dropped_bytes} B, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev, "
+              f"gap between reads {st.read_gap_us:.1f} us")
+
+        print("\n4. catch-up: decode the recorded RAW (alone, then into a session) afterwards")
+        t, c = time.perf_counter(), time.process_time()
+        n = sum(len(events) for events, _ in raw.iter_chunks(tmp / "rec.raw", chunk_bytes=8 << 20))
+        dt, dc = time.perf_counter() - t, time.process_time() - c
+        print(f"  decode only: {n / 1e6 / dt:.1f} Mev/s, CPU {dc / (n / 1e6) * 1e3:.1f} ms/Mev")
+        t, c = time.perf_counter(), time.process_time()
+        with create_session(tmp / "after.zarr", width=WIDTH, height=HEIGHT) as sess:
+            n = 0
+            for events, _ in raw.iter_chunks(tmp / "rec.raw", chunk_bytes=8 << 20):
+                sess.append_events(events)
+                n += len(events)
+        dt, dc = time.perf_counter() - t, time.process_time() - c
+        print(f"  decode + session store: {n / 1e6 / dt:.1f} Mev/s, CPU {dc / (n / 1e6) * 1e3:.1f} ms/Mev "
+              f"({n / 1e6:.1f} Mev)")
+
+
+if __name__ == "__main__":
+    main()
