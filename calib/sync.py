@@ -319,6 +319,11 @@ def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_peri
                         f"{int(rivals[:, 0].max())} edges; use a pseudo-random blink pattern")
     tmap = TimeMap(offset_us=a, drift_ppm=0.0, t_ref_s=x_us[ia] / 1e6)
     tol = tol0 + max_drift_ppm * 1e-6 * np.abs(x_us - x_us[ia])
+    return _refine(x_us, p, sx, y_on, y_off, tmap, tol, method)[0]
+
+
+def _refine(x_us, p, sx, y_on, y_off, tmap, tol, method):
+    """Re-match and refit from a close map; returns (map, RMS residual of the matched edges in µs)."""
     for _ in range(4):
         m = _match(x_us, p, y_on, y_off, tmap.offset_us, tmap.drift_ppm, tmap.t_ref_s * 1e6, tol)
         ok = ~np.isnan(m)
@@ -326,11 +331,11 @@ def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_peri
             raise SyncError(f"only {int(ok.sum())} LED edges matched trigger edges after refinement")
         tmap = fit_linear(x_us[ok] / 1e6, m[ok], sx[ok], method=method)
         tol = np.maximum(5 * np.maximum(sx, tmap.rms_us), 200.0)
-    return tmap
+    return tmap, tmap.rms_us
 
 
-def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel: int | None = None,
-                 led_on_edge: int = 1, max_drift_ppm: float = 200.0) -> TimeMap:
+def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = None, channel: int | None = None,
+                 led_on_edge: int = 1, max_drift_ppm: float = 200.0) -> tuple[TimeMap, float]:
     """Fit the map from a sync-box recording (method (a)).
 
     Parameters
@@ -341,8 +346,10 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel:
         Frame presentation times (s) on the GoPro clock.
     triggers : ndarray of TRIGGER_DTYPE
         EVK trigger events (µs, event clock).
-    exposure_s : float
-        Frame exposure time (s).
+    exposure_s : float, optional
+        Frame exposure time (s) when known (fixed shutter). When omitted it is estimated: the
+        exposure in [0.1, 1] frame period whose edge times fit the triggers with the smallest
+        residual.
     channel : int, optional
         Trigger channel the LED is wired to (default: all).
     led_on_edge : int
@@ -352,8 +359,10 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel:
 
     Returns
     -------
-    TimeMap
+    time_map : TimeMap
         ``method="sync_box"``; ``sigma_us`` gives the uncertainty.
+    exposure_s : float
+        The exposure used (given or estimated), seconds.
     """
     t = np.asarray(t_frame_s, np.float64)
     tr = np.asarray(triggers)
@@ -361,10 +370,30 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel:
         tr = tr[tr["id"] == channel]
     if len(tr) == 0:
         raise SyncError(f"no trigger events{'' if channel is None else f' on channel {channel}'}")
-    te, pe, se = led_edges(brightness, t, exposure_s)
     trig_p = np.where(tr["p"] == led_on_edge, 1, 0)
     period = float(np.median(np.diff(t)))
-    return match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm)
+    e0 = period if exposure_s is None else float(exposure_s)
+    te, pe, se = led_edges(brightness, t, e0)
+    tmap = match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm)
+    if exposure_s is not None:
+        return tmap, e0
+    y = tr["t"].astype(np.float64)
+    y_on, y_off = np.sort(y[trig_p == 1]), np.sort(y[trig_p == 0])
+    grid = np.linspace(0.1, 1.0, 19) * period
+    rms = []
+    for e in grid:
+        te, pe, se = led_edges(brightness, t, e)
+        rms.append(_refine(te * 1e6, pe, se * 1e6, y_on, y_off, tmap, 1.5 * period * 1e6, "sync_box")[1])
+    rms = np.asarray(rms)
+    i = int(np.argmin(rms))
+    e = grid[i]
+    if 0 < i < len(grid) - 1:
+        den = rms[i - 1] - 2 * rms[i] + rms[i + 1]
+        if den > 0:
+            e += 0.5 * (grid[1] - grid[0]) * (rms[i - 1] - rms[i + 1]) / den
+    te, pe, se = led_edges(brightness, t, e)
+    tmap = _refine(te * 1e6, pe, se * 1e6, y_on, y_off, tmap, 1.5 * period * 1e6, "sync_box")[0]
+    return tmap, float(e)
 
 
 # --------------------------------------------------------------------------- (b) activity

@@ -60,11 +60,18 @@ def simulate_sync_box(fps, exposure_frac, duration_s, seed):
 def test_sync_box_meets_half_millisecond(fps, exposure_frac):
     t_frame, frac, e, triggers, rng = simulate_sync_box(fps, exposure_frac, 30.0, seed=int(fps))
     brightness = 40 + 150 * frac + rng.normal(0, 1.5, len(frac))
-    tmap = fit_sync_box(brightness, t_frame, triggers, exposure_s=e)
+    tmap, e_used = fit_sync_box(brightness, t_frame, triggers, exposure_s=e)
+    assert e_used == e
     err = np.abs(tmap.to_event_us(t_frame) - true_event_us(t_frame))
     print(f"sync box fps={fps:.2f} exp={exposure_frac}: max err {err.max():.1f} us, "
           f"drift {tmap.drift_ppm:.2f} ppm, sigma {tmap.sigma_us(t_frame).max():.1f} us, n={tmap.n}")
     assert err.max() <= 500.0
+    # exposure not given: estimated from the fit
+    tmap2, e_est = fit_sync_box(brightness, t_frame, triggers)
+    err2 = np.abs(tmap2.to_event_us(t_frame) - true_event_us(t_frame))
+    print(f"   exposure estimated {e_est * fps:.3f} period (true {exposure_frac}), max err {err2.max():.1f} us")
+    assert abs(e_est - e) < 0.1 / fps
+    assert err2.max() <= 500.0
     assert abs(tmap.drift_ppm - DRIFT_PPM) < 10
     assert err.max() < 5 * tmap.sigma_us(t_frame).max() + 50  # the uncertainty is honest
     assert tmap.n > 100
@@ -82,7 +89,7 @@ def test_sync_box_from_images_finds_led_roi():
 
     b, roi = led_brightness(frames(), grid=8)
     assert roi == (20, 9, 24, 12)
-    tmap = fit_sync_box(b, t_frame, triggers, exposure_s=e, channel=0)
+    tmap, _ = fit_sync_box(b, t_frame, triggers, exposure_s=e, channel=0)
     err = np.abs(tmap.to_event_us(t_frame) - true_event_us(t_frame))
     print(f"sync box from images: max err {err.max():.1f} us")
     assert err.max() <= 500.0

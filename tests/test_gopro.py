@@ -119,6 +119,9 @@ def test_download_with_progress_is_byte_exact(fake, clip, tmp_path):
     out = cam.download("GX010001.MP4", tmp_path, progress=True)
     assert out.read_bytes() == clip.read_bytes()
     assert not (tmp_path / "GX010001.MP4.part").exists()
+    n = len(fake.requests)
+    assert cam.download("GX010001.MP4", tmp_path) == out  # complete file kept: only the media list is asked
+    assert [r for r in fake.requests[n:] if r.startswith("/videos/")] == []
 
 
 def test_download_resumes_after_cut_connection(clip, tmp_path):
