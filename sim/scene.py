@@ -1,0 +1,392 @@
+"""Scene description and brightness rendering: camera, textured balls, distractors, background.
+
+Units: with ``Camera(projection="orthographic")`` scene coordinates are pixels
+(X = column, Y = row, Z unused except for the visible hemisphere); with
+``projection="pinhole"`` they are metres in the camera frame (X right, Y down,
+Z forward). Times are float seconds. Rendered brightness is linear, about 0..1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .rotation import axis_angle_matrices, unit
+from .textures import get_texture
+
+LOG_EPS = 1e-3
+"""``eps`` in the log intensity ``L = ln(I + eps)``."""
+
+
+@dataclass
+class Camera:
+    """Event-camera geometry.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size in pixels.
+    projection : {"orthographic", "pinhole"}
+        Orthographic: scene units are pixels. Pinhole: metres, focal length
+        ``focal_px`` (pixels), principal point ``principal_px`` (default: centre).
+    """
+
+    width: int
+    height: int
+    projection: str = "orthographic"
+    focal_px: float = 1000.0
+    principal_px: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if self.projection not in ("orthographic", "pinhole"):
+            raise ValueError(f"projection must be 'orthographic' or 'pinhole', got {self.projection!r}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"sensor size must be positive, got {self.width}x{self.height}")
+        if self.principal_px is None:
+            self.principal_px = ((self.width - 1) / 2.0, (self.height - 1) / 2.0)
+
+    @property
+    def pinhole(self) -> bool:
+        return self.projection == "pinhole"
+
+    def project(self, xyz: np.ndarray) -> np.ndarray:
+        """Scene points (K, 3) to pixel coordinates (K, 2)."""
+        xyz = np.atleast_2d(xyz)
+        if not self.pinhole:
+            return xyz[:, :2].copy()
+        px, py = self.principal_px
+        return np.stack([px + self.focal_px * xyz[:, 0] / xyz[:, 2],
+                         py + self.focal_px * xyz[:, 1] / xyz[:, 2]], axis=1)
+
+    def rays(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Unit viewing rays (N, 3) through pixels ``(u, v)`` (pinhole only)."""
+        px, py = self.principal_px
+        d = np.stack([(u - px) / self.focal_px, (v - py) / self.focal_px, np.ones_like(u, dtype=np.float64)], 1)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@dataclass
+class Ball:
+    """A textured ball in ballistic motion, spinning about a fixed axis.
+
+    Centre ``c(t) = center + velocity t + accel t^2 / 2`` (scene units, s), orientation
+    ``R(t) = exp(omega t [axis]x) R0``: ``R`` maps ball-frame points to camera-frame
+    offsets, so a surface point at offset ``r`` moves with ``omega * cross(axis, r)``.
+    """
+
+    texture: str = "volleyball"
+    radius: float = 100.0
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    accel: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    omega_rad_s: float = 0.0
+    R0: np.ndarray = field(default_factory=lambda: np.eye(3))
+    gain: float = 1.0
+    texture_opts: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.texture_fn = get_texture(self.texture)
+        self.center = np.asarray(self.center, np.float64).reshape(3)
+        self.velocity = np.asarray(self.velocity, np.float64).reshape(3)
+        self.accel = np.asarray(self.accel, np.float64).reshape(3)
+        self.axis = unit(self.axis)
+        if self.omega_rad_s < 0:
+            raise ValueError(f"omega_rad_s must be >= 0 (flip the axis instead), got {self.omega_rad_s}")
+        if self.radius <= 0:
+            raise ValueError(f"ball radius must be positive, got {self.radius}")
+
+    @property
+    def translating(self) -> bool:
+        return bool(np.any(self.velocity) or np.any(self.accel))
+
+    def center_at(self, t_s) -> np.ndarray:
+        """Centre (K, 3) at times ``t_s`` (K,)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
+        return self.center + self.velocity * t + 0.5 * self.accel * t * t
+
+    def velocity_at(self, t_s) -> np.ndarray:
+        """Centre velocity (K, 3) at times ``t_s`` (K,)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
+        return self.velocity + self.accel * t
+
+    def orientation(self, t_s) -> np.ndarray:
+        """``R(t)`` (K, 3, 3)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        return axis_angle_matrices(self.axis, self.omega_rad_s * t) @ self.R0
+
+    def circle(self, cam: Camera, t_s) -> np.ndarray:
+        """Image circle ``(cx, cy, r)`` in pixels at times ``t_s``, shape (K, 3)."""
+        c = self.center_at(t_s)
+        uv = cam.project(c)
+        if cam.pinhole:
+            dist = np.linalg.norm(c, axis=1)
+            r = cam.focal_px * np.tan(np.arcsin(np.clip(self.radius / dist, 0, 1)))
+        else:
+            r = np.full(len(c), float(self.radius))
+        return np.column_stack([uv, r])
+
+    def image_velocity(self, cam: Camera, t_s, dt_s: float = 1e-5) -> np.ndarray:
+        """Centre velocity in the image (K, 2), px/s."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        return (cam.project(self.center_at(t + dt_s)) - cam.project(self.center_at(t - dt_s))) / (2 * dt_s)
+
+    def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        """Upper bound of any visible point's image speed at ``t_s`` (rim + translation)."""
+        cx, cy, r = self.circle(cam, [t_s])[0]
+        return float(np.hypot(*self.image_velocity(cam, [t_s])[0]) + self.omega_rad_s * r * 1.05)
+
+    def footprint(self, cam: Camera, t0_s: float, t1_s: float):
+        """Swept capsule over ``[t0_s, t1_s]``: (start uv, end uv, radius px)."""
+        c = self.circle(cam, [t0_s, 0.5 * (t0_s + t1_s), t1_s])
+        sag = np.hypot(*(c[1, :2] - 0.5 * (c[0, :2] + c[2, :2])))
+        return c[0, :2], c[2, :2], float(c[:, 2].max() + sag)
+
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) of the ball over ``[t0_s, t1_s]``."""
+        a, b, r = self.footprint(cam, t0_s, t1_s)
+        return (min(a[0], b[0]) - r - 0.5, min(a[1], b[1]) - r - 0.5, max(a[0], b[0]) + r + 0.5, max(a[1], b[1]) + r + 0.5)
+
+    def render(self, cam: Camera, u: np.ndarray, v: np.ndarray, t_s: np.ndarray,
+               light: np.ndarray, ambient: float) -> tuple[np.ndarray, np.ndarray]:
+        """Shaded brightness and coverage at pixels ``(u, v)`` (N,) for times ``t_s`` (K,).
+
+        Returns ``(I, cov)``, both (K, N): ``cov`` is the anti-aliased fraction of the
+        pixel covered by the ball (from the signed distance to the silhouette), ``I``
+        the ball's brightness there (texture at the sphere point under the pixel
+        centre, clamped onto the rim for partly covered pixels, Lambert + ambient).
+        """
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        static = not self.translating
+        tg = t[:1] if static else t
+        c = self.center_at(tg)  # (Kg, 3)
+        if cam.pinhole:
+            d = cam.rays(u, v)  # (N, 3)
+            tc = c @ d.T  # (Kg, N)
+            delta = np.sqrt(np.maximum(np.sum(c * c, 1)[:, None] - tc * tc, 0.0))
+            sd = (self.radius - delta) * cam.focal_px / np.maximum(tc, 1e-9)
+        else:
+            wx = u[None, :] - c[:, :1]
+            wy = v[None, :] - c[:, 1:2]
+            delta = np.hypot(wx, wy)
+            sd = self.radius - delta
+        r = self.radius
+        cov_g = np.clip(sd + 0.5, 0.0, 1.0)
+        de_c = np.minimum(delta, r * (1.0 - 1e-9))
+        scale = de_c / np.maximum(delta, 1e-12) / r
+        s = np.sqrt(1.0 - (de_c / r) ** 2)
+        if cam.pinhole:
+            n = (tc[..., None] * d[None] - c[:, None, :]) * scale[..., None] - s[..., None] * d[None]
+        else:
+            n = np.stack([wx * scale, wy * scale, -s], axis=-1)  # (Kg, N, 3) camera-frame normals
+        shade = ambient + (1.0 - ambient) * np.maximum(n @ light, 0.0)
+        R = self.orientation(t)  # (K, 3, 3)
+        edge = 1.0 / max(float(self.circle(cam, tg[:1])[0, 2]), 1.0)
+        if static:
+            # the camera-frame sphere point under each pixel is fixed: rotate it by R(t)^T
+            inside = cov_g[0] > 0
+            q = np.matmul(n[0, inside][None], R).reshape(-1, 3)
+            alb = self.texture_fn(q, edge, **self.texture_opts).reshape(len(t), -1)
+            I = np.zeros((len(t), len(u)))
+            I[:, inside] = self.gain * alb * shade[0, inside][None, :]
+            return I, np.broadcast_to(cov_g, (len(t), len(u)))
+        q = np.matmul(n, R).reshape(-1, 3)  # row vectors: q = R(t)^T n
+        I = self.gain * self.texture_fn(q, edge, **self.texture_opts).reshape(len(t), -1) * shade
+        return I, cov_g
+
+
+@dataclass
+class Player:
+    """Player-like distractor: body ellipse + head disc with a striped shirt, walking sideways.
+
+    Geometry in pixels (orthographic sensor coordinates): feet at ``(x0 + vx t, y0)``,
+    ``height_px`` tall, bobbing by ``bob_px`` at ``step_hz``.
+    """
+
+    x0: float = 200.0
+    y0: float = 700.0
+    vx: float = 150.0
+    height_px: float = 300.0
+    bob_px: float = 6.0
+    step_hz: float = 2.0
+    shirt: float = 0.65
+    shorts: float = 0.12
+    skin: float = 0.5
+
+    def _parts(self, t: np.ndarray):
+        cx = self.x0 + self.vx * t
+        base = self.y0 - self.bob_px * np.abs(np.sin(np.pi * self.step_hz * t))
+        h = self.height_px
+        # (cx, cy, semi-axis x, semi-axis y) for body and head
+        body = (cx, base - 0.42 * h, 0.16 * h, 0.42 * h)
+        head = (cx, base - 0.91 * h, 0.08 * h, 0.09 * h)
+        return body, head
+
+    def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        return abs(self.vx) + self.bob_px * np.pi * self.step_hz
+
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        t = np.array([t0_s, t1_s])
+        x = self.x0 + self.vx * t
+        h = self.height_px
+        return (x.min() - 0.16 * h - 2, self.y0 - h - self.bob_px - 2, x.max() + 0.16 * h + 2, self.y0 + 2)
+
+    def render(self, cam: Camera, u, v, t_s, light, ambient):
+        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
+        body, head = self._parts(t)
+        covs, vals = [], []
+        for (cx, cy, a, b), kind in ((body, "body"), (head, "head")):
+            x = (u[None, :] - cx) / a
+            y = (v[None, :] - cy) / b
+            rho = np.sqrt(x * x + y * y)
+            cov = np.clip((1.0 - rho) * min(a, b) + 0.5, 0.0, 1.0)
+            if kind == "body":
+                yrel = (v[None, :] - (cy - b)) / (2 * b)  # 0 at shoulders, 1 at feet
+                stripes = 0.15 * (np.sin(2 * np.pi * yrel * 6.0) > 0)
+                # shirt above 55 % of the height, shorts below, edge softened over ~1 px
+                m = np.clip((yrel - 0.55) * 2 * b + 0.5, 0, 1)
+                val = (1 - m) * (self.shirt - stripes) + m * self.shorts
+            else:
+                val = np.full_like(cov, self.skin)
+            covs.append(cov)
+            vals.append(val)
+        cov = np.maximum(covs[0], covs[1])
+        I = np.where(covs[1] > 0, vals[1], vals[0])
+        return I, cov
+
+
+def disjoint_groups(items, n_pixels: int) -> list[tuple[np.ndarray, int]]:
+    """Merge per-object pixel sets that need ``n`` samples into disjoint groups.
+
+    ``items`` is a sequence of ``(flat_indices, n)``; every pixel lands in the group
+    of the largest ``n`` among the items that contain it. Returns ``[(flat, n)]``
+    with ``n`` decreasing.
+    """
+    taken = np.zeros(n_pixels, bool)
+    out = []
+    for n in sorted({m for _, m in items}, reverse=True):
+        parts = []
+        for flat, m in items:
+            if m == n:
+                sel = flat[~taken[flat]]
+                taken[sel] = True
+                parts.append(sel)
+        flat = np.concatenate(parts)
+        if flat.size:
+            out.append((flat, n))
+    return out
+
+
+def court_background(width: int, height: int, rng: np.random.Generator, *, level: float = 0.35):
+    """A static textured background (floor, lines, boards) as a function ``bg(u, v) -> I``.
+
+    Drawn once from ``rng``; evaluable at any (float) pixel coordinates so the frame
+    camera can sample it from another viewpoint.
+    """
+    n_waves = 6
+    kx = rng.uniform(-1, 1, n_waves) * 2 * np.pi / rng.uniform(40, 300, n_waves)
+    ky = rng.uniform(-1, 1, n_waves) * 2 * np.pi / rng.uniform(40, 300, n_waves)
+    ph = rng.uniform(0, 2 * np.pi, n_waves)
+    amp = rng.uniform(0.01, 0.04, n_waves)
+    line_y = height * rng.uniform(0.7, 0.85)
+    line_x = width * rng.uniform(0.2, 0.8)
+    board_top = height * rng.uniform(0.25, 0.35)
+    n_ads = 5
+    ad_x = np.sort(rng.uniform(0, width, n_ads + 1))
+    ad_lvl = rng.uniform(0.2, 0.7, n_ads)
+
+    def bg(u, v):
+        u = np.asarray(u, np.float64)
+        v = np.asarray(v, np.float64)
+        out = np.full(np.broadcast(u, v).shape, level)
+        for i in range(n_waves):
+            out += amp[i] * np.sin(kx[i] * u + ky[i] * v + ph[i])
+
+        def band(dist, half):
+            return np.clip(half + 0.5 - np.abs(dist), 0, 1)
+
+        out += 0.4 * np.maximum(band(v - line_y, 3.0), band(u - line_x, 3.0) * (v > board_top + 40))
+        # advertising boards: a strip of constant-level panels with soft edges
+        in_board = np.clip(np.minimum(v - (board_top - 40), board_top - v) + 0.5, 0, 1)
+        idx = np.clip(np.searchsorted(ad_x, u) - 1, 0, n_ads - 1)
+        out = out + in_board * (ad_lvl[idx] - out)
+        return np.clip(out, 0.02, 1.0)
+
+    return bg
+
+
+@dataclass
+class Scene:
+    """Everything the cameras see: background function, objects (back to front), lighting."""
+
+    camera: Camera
+    objects: list = field(default_factory=list)
+    background: object = None
+    background_level: float = 0.3
+    light: np.ndarray = field(default_factory=lambda: unit([-0.35, -0.5, -1.0]))
+    ambient: float = 0.35
+
+    def __post_init__(self):
+        self.light = unit(self.light)
+        self._bg_cache: dict = {}
+
+    def background_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Background brightness at pixels (N,)."""
+        if self.background is None:
+            return np.full(np.shape(u), float(self.background_level))
+        return self.background(u, v)
+
+    def sensor_background(self) -> np.ndarray:
+        """Background brightness over the whole sensor, flat (H*W,), cached."""
+        if "sensor" not in self._bg_cache:
+            h, w = self.camera.height, self.camera.width
+            v, u = np.divmod(np.arange(h * w), w)
+            self._bg_cache["sensor"] = self.background_at(u.astype(float), v.astype(float))
+        return self._bg_cache["sensor"]
+
+    def render(self, u: np.ndarray, v: np.ndarray, t_s, bg: np.ndarray | None = None) -> np.ndarray:
+        """Brightness (K, N) at pixel coordinates ``(u, v)`` (N,) and times ``t_s`` (K,)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        base = self.background_at(u, v) if bg is None else bg
+        out = np.broadcast_to(base, (len(t), len(u))).copy()
+        if len(u) == 0:
+            return out
+        umin, umax, vmin, vmax = u.min(), u.max(), v.min(), v.max()
+        for obj in self.objects:
+            x0, y0, x1, y1 = obj.bbox(self.camera, t[0], t[-1])
+            if x1 < umin or x0 > umax or y1 < vmin or y0 > vmax:
+                continue
+            I, cov = obj.render(self.camera, u, v, t, self.light, self.ambient)
+            out += cov * (I - out)
+        return out
+
+    def max_speed_px_s(self, t_s: float) -> float:
+        """Fastest image motion of anything in the scene at ``t_s`` (px/s)."""
+        return max([o.max_speed_px_s(self.camera, t_s) for o in self.objects], default=0.0)
+
+    def footprint_pixels(self, obj, t0_s: float, t1_s: float, margin_px: float = 2.0) -> np.ndarray:
+        """Flat indices (y * width + x) of the pixels ``obj`` may touch during ``[t0_s, t1_s]``.
+
+        A ball's footprint is its swept capsule, any other object's its bounding box,
+        both grown by ``margin_px`` (larger than a render step, so a pixel leaving the
+        footprint has already been sampled with the object clear of it).
+        """
+        w, h = self.camera.width, self.camera.height
+        x0, y0, x1, y1 = obj.bbox(self.camera, t0_s, t1_s)
+        x0 = max(int(np.floor(x0 - margin_px)), 0)
+        y0 = max(int(np.floor(y0 - margin_px)), 0)
+        x1 = min(int(np.ceil(x1 + margin_px)), w - 1)
+        y1 = min(int(np.ceil(y1 + margin_px)), h - 1)
+        if x1 < x0 or y1 < y0:
+            return np.zeros(0, np.int64)
+        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+        if isinstance(obj, Ball):
+            a, b, r = obj.footprint(self.camera, t0_s, t1_s)
+            r += margin_px
+            ab = b - a
+            L2 = float(ab @ ab)
+            s = np.zeros(xx.shape) if L2 == 0 else np.clip(((xx - a[0]) * ab[0] + (yy - a[1]) * ab[1]) / L2, 0, 1)
+            keep = np.hypot(xx - a[0] - s * ab[0], yy - a[1] - s * ab[1]) <= r
+            yy, xx = yy[keep], xx[keep]
+        return (yy * w + xx).ravel().astype(np.int64)
