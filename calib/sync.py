@@ -191,7 +191,7 @@ def led_brightness(frames: Iterable, roi=None, *, grid: int = 32) -> tuple[np.nd
     return stack[:, gy, gx].astype(np.float64), (gx * bx, gy * by, (gx + 1) * bx, (gy + 1) * by)
 
 
-def led_edges(brightness, t_frame_s, exposure_s: float):
+def led_edges(brightness, t_frame_s, exposure_s: float, *, gamma: float = 2.2):
     """LED on/off edges on the frame clock, timed below the frame period.
 
     A frame exposed over ``[t, t + e]`` sees the LED on for a fraction ``f`` of its exposure; an
@@ -206,6 +206,9 @@ def led_edges(brightness, t_frame_s, exposure_s: float):
         Frame presentation times (s).
     exposure_s : float
         Exposure time per frame (s), at most the frame period.
+    gamma : float
+        Encoding gamma of the video: 8-bit values ``b`` are linearised as ``(b / 255) ** gamma``
+        before the on-fraction is read (GoPro footage is gamma-encoded, about 2.2; 1 for linear data).
 
     Returns
     -------
@@ -216,7 +219,7 @@ def led_edges(brightness, t_frame_s, exposure_s: float):
     sigma_s : ndarray, shape (M,)
         One-sigma timing error of each edge (s).
     """
-    b = np.asarray(brightness, np.float64)
+    b = (np.clip(np.asarray(brightness, np.float64), 0, None) / 255.0) ** gamma
     t = np.asarray(t_frame_s, np.float64)
     if b.shape != t.shape or len(b) < 3:
         raise SyncError(f"brightness {b.shape} and frame times {t.shape} must match, with >= 3 frames")
@@ -268,13 +271,16 @@ def _match(x_us, p, y_on, y_off, a, b_ppm, x_ref_us, tol_us):
 
 
 def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_period_s: float,
-                max_drift_ppm: float = 200.0, method: str = "sync_box") -> TimeMap:
+                max_drift_ppm: float = 200.0, prior: TimeMap | None = None, prior_window_s: float | None = None,
+                method: str = "sync_box") -> TimeMap:
     """Match LED edges seen in frames with trigger edges and fit the map.
 
     Every pairing of one of a few anchor frame edges with a same-polarity trigger edge proposes
     an offset; the one under which most frame edges find a trigger edge (tolerance 1.5 frame
     periods plus ``max_drift_ppm`` over the distance to the anchor) wins; then the map is refitted
-    and re-matched with a tightening tolerance.
+    and re-matched with a tightening tolerance. With a ``prior`` map (e.g. from
+    :func:`fit_activity`) only offsets within ``prior_window_s`` (default 3 frame periods) of it
+    are tried, which makes a periodic blink pattern usable.
 
     Raises
     ------
@@ -294,8 +300,11 @@ def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_peri
     anchors = np.unique(np.linspace(0, len(x_us) - 1, min(7, len(x_us))).round().astype(int))
     best = (-1, 0.0, 0.0, 0)
     scores = []
+    window_us = (3 * frame_period_s if prior_window_s is None else prior_window_s) * 1e6
     for ia in anchors:
         ys = y_on if p[ia] == 1 else y_off
+        if prior is not None:
+            ys = ys[np.abs(ys - prior.to_event_us(x_us[ia] / 1e6)) <= window_us]
         for yj in ys:
             a = yj
             tol = tol0 + max_drift_ppm * 1e-6 * np.abs(x_us - x_us[ia])
@@ -319,6 +328,11 @@ def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_peri
                         f"{int(rivals[:, 0].max())} edges; use a pseudo-random blink pattern")
     tmap = TimeMap(offset_us=a, drift_ppm=0.0, t_ref_s=x_us[ia] / 1e6)
     tol = tol0 + max_drift_ppm * 1e-6 * np.abs(x_us - x_us[ia])
+    return _refine(x_us, p, sx, y_on, y_off, tmap, tol, method)[0]
+
+
+def _refine(x_us, p, sx, y_on, y_off, tmap, tol, method):
+    """Re-match and refit from a close map; returns (map, weighted RMS residual of the matched edges, µs)."""
     for _ in range(4):
         m = _match(x_us, p, y_on, y_off, tmap.offset_us, tmap.drift_ppm, tmap.t_ref_s * 1e6, tol)
         ok = ~np.isnan(m)
@@ -326,11 +340,14 @@ def match_edges(edge_t_s, edge_p, edge_sigma_s, trig_t_us, trig_p, *, frame_peri
             raise SyncError(f"only {int(ok.sum())} LED edges matched trigger edges after refinement")
         tmap = fit_linear(x_us[ok] / 1e6, m[ok], sx[ok], method=method)
         tol = np.maximum(5 * np.maximum(sx, tmap.rms_us), 200.0)
-    return tmap
+    w = 1.0 / sx[ok] ** 2
+    res = m[ok] - tmap.to_event_us(x_us[ok] / 1e6)
+    return tmap, float(np.sqrt(np.sum(w * res**2) / np.sum(w)))
 
 
-def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel: int | None = None,
-                 led_on_edge: int = 1, max_drift_ppm: float = 200.0) -> TimeMap:
+def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = None, channel: int | None = None,
+                 led_on_edge: int = 1, max_drift_ppm: float = 200.0, prior: TimeMap | None = None,
+                 prior_window_s: float | None = None, gamma: float = 2.2) -> tuple[TimeMap, float]:
     """Fit the map from a sync-box recording (method (a)).
 
     Parameters
@@ -341,19 +358,28 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel:
         Frame presentation times (s) on the GoPro clock.
     triggers : ndarray of TRIGGER_DTYPE
         EVK trigger events (µs, event clock).
-    exposure_s : float
-        Frame exposure time (s).
+    exposure_s : float, optional
+        Frame exposure time (s) when known (fixed shutter). When omitted it is estimated: the
+        exposure in [0.1, 1] frame period whose edge times fit the triggers with the smallest
+        weighted residual (edges timed inside an exposure dominate).
     channel : int, optional
         Trigger channel the LED is wired to (default: all).
     led_on_edge : int
         Trigger polarity that corresponds to the LED turning on (1: rising).
     max_drift_ppm : float
         Largest clock drift considered during matching.
+    prior, prior_window_s : TimeMap, float, optional
+        A rough map (e.g. :func:`fit_activity`) and how far from it (s) the offset may be; needed
+        when the blink pattern is periodic rather than pseudo-random.
+    gamma : float
+        Encoding gamma of the video (see :func:`led_edges`).
 
     Returns
     -------
-    TimeMap
+    time_map : TimeMap
         ``method="sync_box"``; ``sigma_us`` gives the uncertainty.
+    exposure_s : float
+        The exposure used (given or estimated), seconds.
     """
     t = np.asarray(t_frame_s, np.float64)
     tr = np.asarray(triggers)
@@ -361,10 +387,31 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float, channel:
         tr = tr[tr["id"] == channel]
     if len(tr) == 0:
         raise SyncError(f"no trigger events{'' if channel is None else f' on channel {channel}'}")
-    te, pe, se = led_edges(brightness, t, exposure_s)
     trig_p = np.where(tr["p"] == led_on_edge, 1, 0)
     period = float(np.median(np.diff(t)))
-    return match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm)
+    e0 = period if exposure_s is None else float(exposure_s)
+    te, pe, se = led_edges(brightness, t, e0, gamma=gamma)
+    tmap = match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm,
+                       prior=prior, prior_window_s=prior_window_s)
+    if exposure_s is not None:
+        return tmap, e0
+    y = tr["t"].astype(np.float64)
+    y_on, y_off = np.sort(y[trig_p == 1]), np.sort(y[trig_p == 0])
+    grid = np.linspace(0.1, 1.0, 19) * period
+    rms = []
+    for e in grid:
+        te, pe, se = led_edges(brightness, t, e, gamma=gamma)
+        rms.append(_refine(te * 1e6, pe, se * 1e6, y_on, y_off, tmap, 1.5 * period * 1e6, "sync_box")[1])
+    rms = np.asarray(rms)
+    i = int(np.argmin(rms))
+    e = grid[i]
+    if 0 < i < len(grid) - 1:
+        den = rms[i - 1] - 2 * rms[i] + rms[i + 1]
+        if den > 0:
+            e += 0.5 * (grid[1] - grid[0]) * (rms[i - 1] - rms[i + 1]) / den
+    te, pe, se = led_edges(brightness, t, e, gamma=gamma)
+    tmap = _refine(te * 1e6, pe, se * 1e6, y_on, y_off, tmap, 1.5 * period * 1e6, "sync_box")[0]
+    return tmap, float(e)
 
 
 # --------------------------------------------------------------------------- (b) activity

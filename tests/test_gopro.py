@@ -50,8 +50,8 @@ def test_open_enables_wired_control_and_keep_alive_runs(fake):
         assert fake.wired_control
         time.sleep(0.4)
     n = len(fake.keep_alive_times)
-    assert n >= 4
-    assert np.max(np.diff(fake.keep_alive_times)) < 0.3
+    assert n >= 3
+    assert np.max(np.diff(fake.keep_alive_times)) < 0.35  # every 0.05 s asked; generous for loaded machines
     time.sleep(0.15)
     assert len(fake.keep_alive_times) == n  # thread stopped on close
     assert cam.keep_alive_failures == 0
@@ -119,6 +119,9 @@ def test_download_with_progress_is_byte_exact(fake, clip, tmp_path):
     out = cam.download("GX010001.MP4", tmp_path, progress=True)
     assert out.read_bytes() == clip.read_bytes()
     assert not (tmp_path / "GX010001.MP4.part").exists()
+    n = len(fake.requests)
+    assert cam.download("GX010001.MP4", tmp_path) == out  # complete file kept: only the media list is asked
+    assert [r for r in fake.requests[n:] if r.startswith("/videos/")] == []
 
 
 def test_download_resumes_after_cut_connection(clip, tmp_path):

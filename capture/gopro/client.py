@@ -370,7 +370,7 @@ class GoPro:
         """Download one file to ``dest_dir`` (streamed; resumed with HTTP Range after a cut).
 
         The data go to ``NAME.part``; it is renamed to ``NAME`` once complete. A ``.part`` left by
-        an earlier broken download is resumed.
+        an earlier broken download is resumed; a complete ``NAME`` of the right size is kept as is.
 
         Parameters
         ----------
@@ -397,6 +397,8 @@ class GoPro:
         dest_dir.mkdir(parents=True, exist_ok=True)
         final = dest_dir / media.name
         part = dest_dir / (media.name + ".part")
+        if final.is_file() and media.size_bytes >= 0 and final.stat().st_size == media.size_bytes:
+            return final  # already downloaded
         url = f"/videos/DCIM/{urllib.parse.quote(media.folder)}/{urllib.parse.quote(media.name)}"
         bar = tqdm(total=media.size_bytes if media.size_bytes >= 0 else None, unit="B", unit_scale=True,
                    desc=media.name, disable=not progress, initial=part.stat().st_size if part.exists() else 0)
