@@ -24,18 +24,12 @@ DEMO_SPIN = {"rps": 30.0, "axis": (0.0, 0.0, -1.0)}
 def make_demo_files(folder, *, seed: int = 0, quiet: bool = False) -> tuple[Path, Path, dict]:
     """Simulate the demo rally into ``folder``: ``(raw_path, mp4_path, truth)``."""
     import sim
-    from capture import raw
-    from capture.gopro import write_test_video
 
-    folder = Path(folder)
     if not quiet:
         print("Simulating a volleyball rally (events, 120 fps frames, sync box)...", flush=True)
     rec = sim.rally(seed=seed, **DEMO_SPIN)
-    raw_path = folder / "demo.raw"
-    raw.write(raw_path, rec.events, rec.triggers, format="EVT3", width=rec.width, height=rec.height)
-    fps = float(rec.truth["fps"])
-    mp4_path = write_test_video(folder / "GX010001.MP4", rec.frames, fps)
-    return raw_path, mp4_path, rec.truth
+    paths = rec.save(folder, raw=True, video=True)
+    return paths["raw"], paths["video"], rec.truth
 
 
 def _axis_error_deg(a, b) -> float:
@@ -71,6 +65,7 @@ def run_demo(out, *, viewer: str = "none", speed: str = "recorded", quiet: bool 
                 out=Path(out), backend=FakeEVK(raw_path, pace=speed), viewer=viewer, quiet=quiet,
                 analyse=analyse, gopro=GoPro(host=fake_gopro.host, port=fake_gopro.port),
                 gopro_settings={"resolution": "1080", "fps": 120},
+                led_roi=tuple(truth["sync"]["led_box_px"]),
                 attrs={"demo": {"truth_rps": float(truth["rps"]),
                                 "truth_axis": [float(v) for v in truth["axis"]]}})
             result = record_session(settings, stop)

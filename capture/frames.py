@@ -37,21 +37,23 @@ def fit_time_map(session_dir, video, *, exposure_s: float | None = None, led_roi
 
     Returns
     -------
-    calib.sync.TimeMap
+    time_map : calib.sync.TimeMap
+    exposure_s : float
+        The exposure time used (estimated by the sync-box fit when not given), s.
     """
     from calib import sync
 
     s = open_session(session_dir)
-    exposure_s = exposure_s or 1.0 / float(video.fps)
     triggers = s.triggers()
     if len(triggers) >= MIN_SYNC_TRIGGERS:
-        brightness, _ = sync.led_brightness((img for _, _, img in video.frames(gray=True)), roi=led_roi)
+        brightness, _ = sync.led_brightness(video.frames(gray=True), roi=led_roi)
         try:
             return sync.fit_sync_box(brightness, video.t_s, triggers, exposure_s=exposure_s)
         except sync.SyncError:
             pass  # an LED that is not in view: fall back to activity correlation
+    exposure_s = exposure_s or 1.0 / float(video.fps)
     energy = sync.frame_difference_energy(img for _, _, img in video.frames(gray=True))
-    return sync.fit_activity(_event_times_sample(s), video.t_s, energy, exposure_s=exposure_s)
+    return sync.fit_activity(_event_times_sample(s), video.t_s, energy, exposure_s=exposure_s), exposure_s
 
 
 def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_roi=None) -> str:
@@ -66,13 +68,15 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
     exposure_s : float, optional
         Frame exposure time, s (default: one frame period).
     led_roi : tuple, optional
-        Sync-box LED region ``(x, y, w, h)`` in frame pixels (default: found automatically).
+        Sync-box LED region ``(x0, y0, x1, y1)`` in frame pixels, half-open (default: found
+        automatically as the most varying block of the frames).
 
     Returns
     -------
     str
         One line describing the fitted time map.
     """
+    from calib import store
     from capture.gopro import chapter_paths, read_video
 
     session_dir = Path(session_dir)
@@ -85,14 +89,12 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
             shutil.copy2(p, target)
         first = first or target
     video = read_video(first)
-    tm = fit_time_map(session_dir, video, exposure_s=exposure_s, led_roi=led_roi)
-    t_us = np.round(tm.to_event_us(video.t_s)).astype(np.int64)
+    tm, exposure_s = fit_time_map(session_dir, video, exposure_s=exposure_s, led_roi=led_roi)
     writer = update_session(session_dir)
-    writer.set_video(str(first.relative_to(session_dir)), t_us)
-    writer.set_attrs(time_sync=tm.to_dict(),
-                     frame_camera={"model": "GoPro", "width": video.width, "height": video.height,
+    store.attach_video(writer, session_dir, video, tm, exposure_s=exposure_s)
+    writer.set_attrs(frame_camera={"model": "GoPro", "width": video.width, "height": video.height,
                                    "fps_num": video.fps_num, "fps_den": video.fps_den,
-                                   "n_frames": video.n_frames})
+                                   "n_frames": video.n_frames, "exposure_s": float(exposure_s)})
     writer.close()
     sigma = float(np.sqrt(max(tm.cov[0, 0], 0.0)))
     return (f"{video.n_frames} frames at {float(video.fps):.2f} fps aligned by {tm.method}: "

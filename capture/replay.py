@@ -161,21 +161,24 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)
 
 
-def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True) -> Path:
-    """Convert a RAW file (and optionally its MP4) into a new session directory."""
-    from capture.raw import convert
+def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True, led_roi=None) -> Path:
+    """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session."""
+    from capture.raw.cli import convert
 
     convert(raw_path, session_dir, progress=progress)
     if mp4_path is not None:
-        attach_video(session_dir, mp4_path)
+        print(attach_video(session_dir, mp4_path, led_roi=led_roi))
     return Path(session_dir)
 
 
 def main(argv=None) -> int:
+    from capture.run import RecorderError, parse_box
+
     ap = argparse.ArgumentParser(prog="python -m capture.replay",
                                  description="Run detection and spin over a stored session or a RAW file.")
     ap.add_argument("source", help="session directory, or a Prophesee RAW file")
     ap.add_argument("--mp4", help="GoPro video to attach when SOURCE is a RAW file")
+    ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in video pixels (default: automatic)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
     ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="spin window, µs")
@@ -190,12 +193,13 @@ def main(argv=None) -> int:
             raise FileNotFoundError(f"{src}: no such file or directory")
         if src.is_file():
             out = Path(args.out) if args.out else src.with_name(src.stem + "_session")
-            session_path = session_from_raw(src, out, args.mp4, progress)
+            led_roi = parse_box(args.led_roi, "--led-roi", "X0,Y0,X1,Y1") if args.led_roi else None
+            session_path = session_from_raw(src, out, args.mp4, progress, led_roi)
         else:
             session_path = src
         opts = ReplayOptions(window_us=args.window_us, method=args.method, workers=args.workers)
         result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
-    except (SessionError, OSError, ValueError) as exc:
+    except (SessionError, RecorderError, OSError, ValueError) as exc:
         print(f"replay: error: {exc}", file=sys.stderr)
         return 1
     n_flights = len(result.track.flight_ids())

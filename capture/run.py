@@ -61,6 +61,8 @@ class RecordSettings:
         A connected ``capture.gopro.GoPro`` client, or None.
     gopro_settings : dict
         ``GoPro.configure`` keyword arguments.
+    led_roi : tuple or None
+        Sync-box LED region ``(x0, y0, x1, y1)`` in GoPro pixels (None: found automatically).
     viewer : str
         ``spawn``, ``serve`` or ``none``.
     max_duration_s : float or None
@@ -84,6 +86,7 @@ class RecordSettings:
     trigger_in: bool = True
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)
+    led_roi: tuple | None = None
     viewer: str = "none"
     max_duration_s: float | None = None
     min_free_bytes: int = 500 * 2**20
@@ -298,7 +301,7 @@ def _gopro_finish(settings: RecordSettings, before, out: Path, messages: list[st
             messages.append("the GoPro recorded no new video")
             return
         paths = gp.download_recording(new[-1], out / GOPRO_DIR, progress=not settings.quiet)
-        sync = attach_video(out, paths[0])
+        sync = attach_video(out, paths[0], led_roi=settings.led_roi)
         messages.append(f"GoPro video {paths[0].name}: {sync}")
     except Exception as exc:  # the event recording is safe; report the GoPro problem on one line
         messages.append(f"GoPro: {exc}")
@@ -317,6 +320,17 @@ def _parse_kv(items: list[str]) -> dict[str, int]:
         except ValueError:
             raise RecorderError(f"--bias {name}: {value!r} is not an integer") from None
     return out
+
+
+def parse_box(text: str, option: str, form: str) -> tuple[int, int, int, int]:
+    """Four comma-separated integers, or a :class:`RecorderError` naming the option."""
+    try:
+        box = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        box = ()
+    if len(box) != 4:
+        raise RecorderError(f"{option} expects {form}, got {text!r}")
+    return box
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -340,6 +354,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gopro-serial", help="GoPro serial (its wired-USB address is derived from it)")
     ap.add_argument("--gopro-fps", type=int, default=240, help="GoPro frame rate (default 240)")
     ap.add_argument("--gopro-res", default="1080", help="GoPro resolution (default 1080)")
+    ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in GoPro pixels "
+                                      "(default: found automatically)")
     ap.add_argument("--no-analysis", action="store_true", help="skip the offline analysis at the end")
     ap.add_argument("--quiet", action="store_true", help="no status line or progress bars")
     return ap
@@ -368,11 +384,9 @@ def main(argv=None) -> int:
                                   max_duration_s=args.duration, analyse=not args.no_analysis,
                                   quiet=args.quiet)
         if args.roi:
-            try:
-                settings.roi = tuple(int(v) for v in args.roi.split(","))
-                assert len(settings.roi) == 4
-            except (ValueError, AssertionError):
-                raise RecorderError(f"--roi expects X,Y,WIDTH,HEIGHT, got {args.roi!r}") from None
+            settings.roi = parse_box(args.roi, "--roi", "X,Y,WIDTH,HEIGHT")
+        if args.led_roi:
+            settings.led_roi = parse_box(args.led_roi, "--led-roi", "X0,Y0,X1,Y1")
         if args.fake:
             from capture.evk.fake import FakeEVK
 
