@@ -1,8 +1,16 @@
 """Synthetic spinning-ball simulator with ground truth.
 
-Entry points: :func:`spinning_ball` (one spinning ball, events + truth).
+Entry points:
+
+- :func:`spinning_ball` - one spinning (optionally drifting) ball: ``(events, truth)``.
+- :func:`flight` - a ballistic flight across the sensor with background, noise, hot
+  pixels, distractors, optional frames and sync triggers: a :class:`Recording`.
+- :func:`rally` - the quick flight preset used by the built-in demo.
+- ``python -m sim.dataset --preset paper OUT`` - datasets on disk.
 """
 
 from .balls import spinning_ball
+from .flight import Recording, flight, rally
+from .frames import SyncBox
 
-__all__ = ["spinning_ball"]
+__all__ = ["spinning_ball", "flight", "rally", "Recording", "SyncBox"]

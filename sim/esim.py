@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture.events import EVENT_DTYPE
-from .scene import LOG_EPS, Scene
+from .scene import LOG_EPS, Scene, disjoint_groups
 
 
 @dataclass
@@ -24,7 +24,8 @@ class SensorState:
 
     ``c_on`` / ``c_off``: contrast thresholds (log units), fixed for the sensor's
     life; ``ref``: log level at each pixel's last event; ``last_t_s``: time of the
-    last emitted event (for the refractory period).
+    last emitted event (for the refractory period); ``sample_L`` / ``sample_t_s``:
+    log level and time of each pixel's latest render sample.
     """
 
     width: int
@@ -33,6 +34,8 @@ class SensorState:
     c_off: np.ndarray
     ref: np.ndarray
     last_t_s: np.ndarray
+    sample_L: np.ndarray
+    sample_t_s: np.ndarray
 
     @classmethod
     def new(cls, width: int, height: int, rng: np.random.Generator, *, threshold: float = 0.15,
@@ -46,10 +49,10 @@ class SensorState:
         on = threshold + mismatch_sigma * rng.standard_normal(n)
         off = c_off + mismatch_sigma * rng.standard_normal(n)
         return cls(width, height, np.maximum(on, min_threshold), np.maximum(off, min_threshold),
-                   np.zeros(n), np.full(n, -np.inf))
+                   np.zeros(n), np.full(n, -np.inf), np.zeros(n), np.zeros(n))
 
 
-def step_events(L0: np.ndarray, L1: np.ndarray, t0_s: float, t1_s: float, ref: np.ndarray,
+def step_events(L0: np.ndarray, L1: np.ndarray, t0_s, t1_s, ref: np.ndarray,
                 c_on: np.ndarray, c_off: np.ndarray, last_t_s: np.ndarray | None = None,
                 refractory_s: float = 0.0):
     """Events of one render step for N pixels (updates ``ref`` and ``last_t_s`` in place).
@@ -58,8 +61,8 @@ def step_events(L0: np.ndarray, L1: np.ndarray, t0_s: float, t1_s: float, ref: n
     ----------
     L0, L1 : ndarray, shape (N,)
         Log intensity at the start and the end of the step.
-    t0_s, t1_s : float
-        Step start and end times (s).
+    t0_s, t1_s : float or ndarray, shape (N,)
+        Step start and end times (s), shared or per pixel.
     ref, c_on, c_off : ndarray, shape (N,)
         Reference log level and the pixels' thresholds.
 
@@ -82,7 +85,9 @@ def step_events(L0: np.ndarray, L1: np.ndarray, t0_s: float, t1_s: float, ref: n
         level = ref[rep] + sign * j * c[rep]
         slope = L1[rep] - L0[rep]
         frac = np.clip(np.divide(level - L0[rep], slope, out=np.ones_like(slope), where=slope != 0), 0.0, 1.0)
-        t = t0_s + frac * (t1_s - t0_s)
+        t0 = t0_s[rep] if np.ndim(t0_s) else t0_s
+        t1 = t1_s[rep] if np.ndim(t1_s) else t1_s
+        t = t0 + frac * (t1 - t0)
         ref[idx] += sign * n * c[idx]
         if refractory_s > 0 and last_t_s is not None:
             keep = np.ones(rep.size, bool)
@@ -106,8 +111,14 @@ def step_events(L0: np.ndarray, L1: np.ndarray, t0_s: float, t1_s: float, ref: n
 def simulate(scene: Scene, sensor: SensorState, t_start_s: float, t_end_s: float, *,
              n_events: int | None = None, step_px: float = 0.25, max_step_s: float = 1e-3,
              refractory_s: float = 0.0, chunk_elems: int = 1 << 17, t_offset_us: int = 0,
-             init: bool = True, on_chunk=None) -> np.ndarray:
+             init: bool = True) -> np.ndarray:
     """Events of ``scene`` seen by ``sensor`` between ``t_start_s`` and ``t_end_s``.
+
+    Time advances in chunks. Within a chunk every object gets its own render step
+    (``step_px`` divided by its image speed); a pixel is rendered at the finest step
+    of the objects whose swept footprint covers it, and pixels covered by none are
+    static background and are not touched. Each pixel's first step in a chunk starts
+    from its latest render sample, so pixels switch rates without losing changes.
 
     Parameters
     ----------
@@ -121,54 +132,50 @@ def simulate(scene: Scene, sensor: SensorState, t_start_s: float, t_end_s: float
     t_offset_us : int
         Added to every timestamp (µs): event time = ``t_offset_us + floor(t_s * 1e6)``.
     init : bool
-        Set every pixel's reference to the scene's log intensity at ``t_start_s``.
-    on_chunk : callable, optional
-        Called as ``on_chunk(t0_s, t1_s)`` after every processed chunk.
+        Set every pixel's reference to the scene's log intensity at ``t_start_s``
+        (otherwise continue from the sensor's state).
 
     Returns
     -------
     ndarray of EVENT_DTYPE sorted by ``t``.
     """
     cam = scene.camera
-    w = cam.width
-    if init:
-        v, u = np.divmod(np.arange(w * cam.height), w)
-        sensor.ref[:] = np.log(scene.render(u.astype(float), v.astype(float), [t_start_s],
-                                            bg=scene.sensor_background())[0] + LOG_EPS)
+    w, h = cam.width, cam.height
     bg_all = scene.sensor_background()
+    if init:
+        v, u = np.divmod(np.arange(w * h), w)
+        L = np.log(scene.render(u.astype(float), v.astype(float), [t_start_s], bg=bg_all)[0] + LOG_EPS)
+        sensor.ref[:] = L
+        sensor.sample_L[:] = L
+        sensor.sample_t_s[:] = t_start_s
     ts, xs, ys, ps = [], [], [], []
     count = 0
     t = float(t_start_s)
-    k_steps = 16
+    n_fine = chunk_elems // 8  # pixels rendered per step; sets the chunk length
     while t < t_end_s:
-        speed = scene.max_speed_px_s(t)
-        dt = max_step_s if speed <= 0 else min(max_step_s, step_px / speed)
-        t1 = min(t_end_s, t + k_steps * dt)
-        x0, y0, mask = scene.active_mask(t, t1)
-        yy, xx = np.nonzero(mask)
-        n_pix = xx.size
-        k_new = int(np.clip(chunk_elems // max(n_pix, 1), 4, 512))
-        if k_new > 2 * k_steps or k_new < k_steps:
-            # re-plan the chunk length for the active-set size, then recompute the set
-            k_steps = k_new
-            t1 = min(t_end_s, t + k_steps * dt)
-            x0, y0, mask = scene.active_mask(t, t1)
-            yy, xx = np.nonzero(mask)
-            n_pix = xx.size
-        k = max(1, int(np.ceil((t1 - t) / dt - 1e-9)))
-        times = np.minimum(t + dt * np.arange(k + 1), t1)
-        if n_pix:
-            xx = xx + x0
-            yy = yy + y0
-            flat = yy * w + xx
+        speeds = np.array([o.max_speed_px_s(cam, t) for o in scene.objects])
+        dts = np.where(speeds > 0, step_px / np.maximum(speeds, 1e-12), max_step_s).clip(None, max_step_s)
+        dt = float(dts.min()) if dts.size else max_step_s
+        k = int(np.clip(chunk_elems // max(n_fine, 1), 4, 512))
+        t1 = min(t_end_s, t + k * dt)
+        span = t1 - t
+        items = [(scene.footprint_pixels(o, t, t1), max(1, int(np.ceil(span / dto - 1e-9))))
+                 for o, dto in zip(scene.objects, dts)]
+        fine_total = 0
+        for flat, n_steps in disjoint_groups(items, w * h):
+            fine_total = max(fine_total, flat.size * n_steps)
+            times = t + span * np.arange(1, n_steps + 1) / n_steps
+            xx = flat % w
+            yy = flat // w
             Lk = np.log(scene.render(xx.astype(float), yy.astype(float), times, bg=bg_all[flat]) + LOG_EPS)
             ref = sensor.ref[flat]
             c_on = sensor.c_on[flat]
             c_off = sensor.c_off[flat]
             last = sensor.last_t_s[flat]
-            for i in range(k):
-                et, ei, ep = step_events(Lk[i], Lk[i + 1], times[i], times[i + 1], ref, c_on, c_off,
-                                         last, refractory_s)
+            L_prev, t_prev = sensor.sample_L[flat], sensor.sample_t_s[flat]
+            for i in range(n_steps):
+                et, ei, ep = step_events(L_prev, Lk[i], t_prev, times[i], ref, c_on, c_off, last, refractory_s)
+                L_prev, t_prev = Lk[i], times[i]
                 if et.size:
                     ts.append(et)
                     xs.append(xx[ei])
@@ -177,9 +184,10 @@ def simulate(scene: Scene, sensor: SensorState, t_start_s: float, t_end_s: float
                     count += et.size
             sensor.ref[flat] = ref
             sensor.last_t_s[flat] = last
+            sensor.sample_L[flat] = Lk[-1]
+            sensor.sample_t_s[flat] = t1
+        n_fine = max(fine_total // max(k, 1), 1)
         t = t1
-        if on_chunk is not None:
-            on_chunk(times[0], t1)
         if n_events is not None and count >= n_events:
             break
     ev = _pack(ts, xs, ys, ps, t_offset_us)

@@ -143,6 +143,11 @@ class Ball:
         sag = np.hypot(*(c[1, :2] - 0.5 * (c[0, :2] + c[2, :2])))
         return c[0, :2], c[2, :2], float(c[:, 2].max() + sag)
 
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) of the ball over ``[t0_s, t1_s]``."""
+        a, b, r = self.footprint(cam, t0_s, t1_s)
+        return (min(a[0], b[0]) - r - 0.5, min(a[1], b[1]) - r - 0.5, max(a[0], b[0]) + r + 0.5, max(a[1], b[1]) + r + 0.5)
+
     def render(self, cam: Camera, u: np.ndarray, v: np.ndarray, t_s: np.ndarray,
                light: np.ndarray, ambient: float) -> tuple[np.ndarray, np.ndarray]:
         """Shaded brightness and coverage at pixels ``(u, v)`` (N,) for times ``t_s`` (K,).
@@ -166,35 +171,28 @@ class Ball:
             wy = v[None, :] - c[:, 1:2]
             delta = np.hypot(wx, wy)
             sd = self.radius - delta
-        cov_g = np.clip(sd + 0.5, 0.0, 1.0)
-        kk, nn = np.nonzero(cov_g > 0)
-        de = delta[kk, nn]
         r = self.radius
-        de_c = np.minimum(de, r * (1.0 - 1e-9))
-        scale = np.divide(de_c, de, out=np.zeros_like(de), where=de > 0) / r
-        s = np.sqrt(np.maximum(r * r - de_c * de_c, 0.0)) / r
+        cov_g = np.clip(sd + 0.5, 0.0, 1.0)
+        de_c = np.minimum(delta, r * (1.0 - 1e-9))
+        scale = de_c / np.maximum(delta, 1e-12) / r
+        s = np.sqrt(1.0 - (de_c / r) ** 2)
         if cam.pinhole:
-            dn = d[nn]
-            w = tc[kk, nn][:, None] * dn - c[kk]
-            n = w * scale[:, None] - s[:, None] * dn
+            n = (tc[..., None] * d[None] - c[:, None, :]) * scale[..., None] - s[..., None] * d[None]
         else:
-            n = np.column_stack([wx[kk, nn] * scale, wy[kk, nn] * scale, -s])
+            n = np.stack([wx * scale, wy * scale, -s], axis=-1)  # (Kg, N, 3) camera-frame normals
         shade = ambient + (1.0 - ambient) * np.maximum(n @ light, 0.0)
         R = self.orientation(t)  # (K, 3, 3)
         edge = 1.0 / max(float(self.circle(cam, tg[:1])[0, 2]), 1.0)
         if static:
             # the camera-frame sphere point under each pixel is fixed: rotate it by R(t)^T
-            q = np.matmul(n[None], R).reshape(-1, 3)
+            inside = cov_g[0] > 0
+            q = np.matmul(n[0, inside][None], R).reshape(-1, 3)
             alb = self.texture_fn(q, edge, **self.texture_opts).reshape(len(t), -1)
-            vals = self.gain * alb * shade[None, :]
             I = np.zeros((len(t), len(u)))
-            I[:, nn] = vals
-            cov = np.broadcast_to(cov_g, (len(t), len(u)))
-            return I, cov
-        Rk = R[kk]
-        q = n[:, 0:1] * Rk[:, 0, :] + n[:, 1:2] * Rk[:, 1, :] + n[:, 2:3] * Rk[:, 2, :]
-        I = np.zeros((len(t), len(u)))
-        I[kk, nn] = self.gain * self.texture_fn(q, edge, **self.texture_opts) * shade
+            I[:, inside] = self.gain * alb * shade[0, inside][None, :]
+            return I, np.broadcast_to(cov_g, (len(t), len(u)))
+        q = np.matmul(n, R).reshape(-1, 3)  # row vectors: q = R(t)^T n
+        I = self.gain * self.texture_fn(q, edge, **self.texture_opts).reshape(len(t), -1) * shade
         return I, cov_g
 
 
@@ -228,7 +226,7 @@ class Player:
     def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
         return abs(self.vx) + self.bob_px * np.pi * self.step_hz
 
-    def bbox(self, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
         t = np.array([t0_s, t1_s])
         x = self.x0 + self.vx * t
         h = self.height_px
@@ -256,6 +254,28 @@ class Player:
         cov = np.maximum(covs[0], covs[1])
         I = np.where(covs[1] > 0, vals[1], vals[0])
         return I, cov
+
+
+def disjoint_groups(items, n_pixels: int) -> list[tuple[np.ndarray, int]]:
+    """Merge per-object pixel sets that need ``n`` samples into disjoint groups.
+
+    ``items`` is a sequence of ``(flat_indices, n)``; every pixel lands in the group
+    of the largest ``n`` among the items that contain it. Returns ``[(flat, n)]``
+    with ``n`` decreasing.
+    """
+    taken = np.zeros(n_pixels, bool)
+    out = []
+    for n in sorted({m for _, m in items}, reverse=True):
+        parts = []
+        for flat, m in items:
+            if m == n:
+                sel = flat[~taken[flat]]
+                taken[sel] = True
+                parts.append(sel)
+        flat = np.concatenate(parts)
+        if flat.size:
+            out.append((flat, n))
+    return out
 
 
 def court_background(width: int, height: int, rng: np.random.Generator, *, level: float = 0.35):
@@ -330,7 +350,13 @@ class Scene:
         t = np.atleast_1d(np.asarray(t_s, np.float64))
         base = self.background_at(u, v) if bg is None else bg
         out = np.broadcast_to(base, (len(t), len(u))).copy()
+        if len(u) == 0:
+            return out
+        umin, umax, vmin, vmax = u.min(), u.max(), v.min(), v.max()
         for obj in self.objects:
+            x0, y0, x1, y1 = obj.bbox(self.camera, t[0], t[-1])
+            if x1 < umin or x0 > umax or y1 < vmin or y0 > vmax:
+                continue
             I, cov = obj.render(self.camera, u, v, t, self.light, self.ambient)
             out += cov * (I - out)
         return out
@@ -339,37 +365,28 @@ class Scene:
         """Fastest image motion of anything in the scene at ``t_s`` (px/s)."""
         return max([o.max_speed_px_s(self.camera, t_s) for o in self.objects], default=0.0)
 
-    def active_mask(self, t0_s: float, t1_s: float, margin_px: float = 2.0):
-        """Pixels that may change during ``[t0_s, t1_s]``: ``(x0, y0, mask)`` over a bounding box."""
+    def footprint_pixels(self, obj, t0_s: float, t1_s: float, margin_px: float = 2.0) -> np.ndarray:
+        """Flat indices (y * width + x) of the pixels ``obj`` may touch during ``[t0_s, t1_s]``.
+
+        A ball's footprint is its swept capsule, any other object's its bounding box,
+        both grown by ``margin_px`` (larger than a render step, so a pixel leaving the
+        footprint has already been sampled with the object clear of it).
+        """
         w, h = self.camera.width, self.camera.height
-        shapes = []
-        for o in self.objects:
-            if isinstance(o, Ball):
-                a, b, r = o.footprint(self.camera, t0_s, t1_s)
-                r += margin_px
-                box = (min(a[0], b[0]) - r, min(a[1], b[1]) - r, max(a[0], b[0]) + r, max(a[1], b[1]) + r)
-                shapes.append(("capsule", box, (a, b, r)))
-            else:
-                x0, y0, x1, y1 = o.bbox(t0_s, t1_s)
-                shapes.append(("box", (x0 - margin_px, y0 - margin_px, x1 + margin_px, y1 + margin_px), None))
-        boxes = [s[1] for s in shapes]
-        if not boxes:
-            return 0, 0, np.zeros((0, 0), bool)
-        x0 = max(int(np.floor(min(b[0] for b in boxes))), 0)
-        y0 = max(int(np.floor(min(b[1] for b in boxes))), 0)
-        x1 = min(int(np.ceil(max(b[2] for b in boxes))), w - 1)
-        y1 = min(int(np.ceil(max(b[3] for b in boxes))), h - 1)
+        x0, y0, x1, y1 = obj.bbox(self.camera, t0_s, t1_s)
+        x0 = max(int(np.floor(x0 - margin_px)), 0)
+        y0 = max(int(np.floor(y0 - margin_px)), 0)
+        x1 = min(int(np.ceil(x1 + margin_px)), w - 1)
+        y1 = min(int(np.ceil(y1 + margin_px)), h - 1)
         if x1 < x0 or y1 < y0:
-            return 0, 0, np.zeros((0, 0), bool)
-        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1].astype(np.float64)
-        mask = np.zeros(xx.shape, bool)
-        for kind, box, cap in shapes:
-            if kind == "box":
-                mask |= (xx >= box[0]) & (xx <= box[2]) & (yy >= box[1]) & (yy <= box[3])
-            else:
-                a, b, r = cap
-                ab = b - a
-                L2 = float(ab @ ab)
-                s = np.zeros_like(xx) if L2 == 0 else np.clip(((xx - a[0]) * ab[0] + (yy - a[1]) * ab[1]) / L2, 0, 1)
-                mask |= np.hypot(xx - a[0] - s * ab[0], yy - a[1] - s * ab[1]) <= r
-        return x0, y0, mask
+            return np.zeros(0, np.int64)
+        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+        if isinstance(obj, Ball):
+            a, b, r = obj.footprint(self.camera, t0_s, t1_s)
+            r += margin_px
+            ab = b - a
+            L2 = float(ab @ ab)
+            s = np.zeros(xx.shape) if L2 == 0 else np.clip(((xx - a[0]) * ab[0] + (yy - a[1]) * ab[1]) / L2, 0, 1)
+            keep = np.hypot(xx - a[0] - s * ab[0], yy - a[1] - s * ab[1]) <= r
+            yy, xx = yy[keep], xx[keep]
+        return (yy * w + xx).ravel().astype(np.int64)

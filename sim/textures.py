@@ -33,18 +33,20 @@ def volleyball(q: np.ndarray, edge_rad: float = 0.01, *, colors=(0.92, 0.62, 0.2
     ``colors[(strip + face) % len(colors)]`` (two or three grey levels).
     """
     q = np.asarray(q, dtype=np.float64)
-    a = np.abs(q)
-    k = np.argmax(a, axis=1)
-    rows = np.arange(q.shape[0])
-    ak = a[rows, k]
-    second = a.sum(axis=1) - ak - a.min(axis=1)
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
+    kx = (ax >= ay) & (ax >= az)
+    ky = ~kx & (ay >= az)
+    ak = np.where(kx, ax, np.where(ky, ay, az))
+    second = ax + ay + az - ak - np.minimum(np.minimum(ax, ay), az)
     d_face = (ak - second) / SQRT2
-    j = (k + 1) % 3
-    qj = q[rows, j]
+    qj = np.where(kx, y, np.where(ky, z, x))  # strips vary along axis k + 1
+    qk = np.where(kx, x, np.where(ky, y, z))
     norm = np.sqrt(1.0 + 1.0 / 9.0)
-    d_strip = np.minimum(np.abs(qj - ak / 3.0), np.abs(qj + ak / 3.0)) / norm
-    strip = np.where(qj < -ak / 3.0, 0, np.where(qj > ak / 3.0, 2, 1))
-    face = 2 * k + (q[rows, k] > 0)
+    third = ak / 3.0
+    d_strip = np.minimum(np.abs(qj - third), np.abs(qj + third)) / norm
+    strip = (qj >= -third).astype(np.int64) + (qj > third)
+    face = 2 * np.where(kx, 0, np.where(ky, 1, 2)) + (qk > 0)
     colors = np.asarray(colors, dtype=np.float64)
     panel = colors[(strip + face) % colors.size]
     w = _seam_weight(np.minimum(d_face, d_strip), seam_half_rad, edge_rad)

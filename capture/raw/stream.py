@@ -1,0 +1,306 @@
+"""Streaming decode: :class:`StreamDecoder` for live byte streams, :class:`RawReader` / :func:`iter_chunks` for files.
+
+Decoding a stream in one call or in any chunking (down to single bytes, splits inside
+words, vector triplets or OTHERS groups) gives identical arrays: the decoder carries the
+incomplete word and the full time / address state from one call to the next.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from capture.raw import evt2, evt3
+from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState
+from capture.raw.errors import RawFormatError
+from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
+
+WORD_BYTES = {"EVT2": 4, "EVT21": 8, "EVT3": 2}
+"""Bytes per stream word (EVT2.1: one 64-bit event)."""
+
+WRAP_US = {"EVT2": 1 << 34, "EVT21": 1 << 34, "EVT3": 1 << 24}
+"""Period of the format's wrapping time base in µs."""
+
+DEFAULT_CHUNK_BYTES = 1 << 24
+"""Bytes read per batch when streaming a file (16 MiB: ~8M EVT3 words)."""
+
+
+class StreamDecoder:
+    """Stateful decoder for a RAW byte stream (no header) of one format.
+
+    Parameters
+    ----------
+    format : str
+        ``"EVT2"``, ``"EVT21"`` or ``"EVT3"`` (usual spellings accepted).
+    endianness : str
+        EVT2.1 only: ``"little"`` (standard) or ``"legacy"`` (halves swapped, EVK IMX636).
+    time_shift : bool
+        Reproduce Metavision's default time shifting: subtract ``first_time_high << 6``
+        (EVT2/2.1) or ``(first_time_high - 1) << 12`` (EVT3, if positive) from every t
+        (plus ``time_base_us``).
+        Default: the sensor's own timestamps.
+    width, height : int, optional
+        Sensor geometry; events outside it are dropped and counted as damage.
+    time_base_us : int
+        µs the stream's clock had already looped through before its first TIME_HIGH: a
+        multiple of the wrap period (2^24 µs EVT3, 2^34 µs EVT2/2.1). Files written by
+        :func:`capture.raw.write` store it in the header field ``time_base_us``.
+
+    Attributes
+    ----------
+    stats : dict
+        Counters (words, events, triggers, skipped and damaged items, time loops/jumps,
+        ``trailing_bytes`` after :meth:`finish`) and ``first_damage_byte`` (stream offset
+        of the first damaged word, or None).
+    """
+
+    def __init__(self, format: str, *, endianness: str = "little", time_shift: bool = False,
+                 width: int | None = None, height: int | None = None, time_base_us: int = 0):
+        self.format = normalize_format(format)
+        if endianness not in ("little", "legacy"):
+            raise ValueError(f"endianness must be 'little' or 'legacy', got {endianness!r}")
+        self.endianness = endianness
+        self.time_shift = bool(time_shift)
+        self.word_bytes = WORD_BYTES[self.format]
+        wrap_us = WRAP_US[self.format]
+        if time_base_us < 0 or time_base_us % wrap_us:
+            raise RawFormatError(f"time_base_us={time_base_us} is not a multiple of the {self.format} "
+                                 f"wrap period {wrap_us} us")
+        self._state = DecoderState(width=width, height=height, loops=time_base_us // wrap_us)
+        self._time_base_us = int(time_base_us)
+        self._tail = b""
+        self.bytes_in = 0
+
+    @property
+    def stats(self) -> dict:
+        st = self._state
+        out = dict(st.stats)
+        out["first_damage_byte"] = (None if st.first_damage_word is None
+                                    else st.first_damage_word * self.word_bytes)
+        return out
+
+    @property
+    def damaged(self) -> bool:
+        """True if any damage counter is non-zero."""
+        return any(self._state.stats[k] for k in DAMAGE_KEYS)
+
+    @property
+    def time_shift_us(self) -> int:
+        """The µs subtracted from every t (0 unless ``time_shift`` and a TIME_HIGH was seen)."""
+        first = self._state.first_th
+        if not self.time_shift or first is None:
+            return 0
+        if self.format == "EVT3":
+            return self._time_base_us + (max(first - 1, 0) << 12)
+        return self._time_base_us + (first << 6)
+
+    def decode(self, data) -> tuple[np.ndarray, np.ndarray]:
+        """Decode the next bytes of the stream.
+
+        Parameters
+        ----------
+        data : bytes, bytearray, memoryview or uint8 ndarray
+            Any number of bytes (incomplete words are kept for the next call).
+
+        Returns
+        -------
+        events : ndarray of EVENT_DTYPE
+        triggers : ndarray of TRIGGER_DTYPE
+        """
+        data = memoryview(data).cast("B") if not isinstance(data, bytes) else data
+        self.bytes_in += len(data)
+        if self._tail:
+            data = self._tail + bytes(data)
+        n_words = len(data) // self.word_bytes
+        cut = n_words * self.word_bytes
+        self._tail = bytes(data[cut:])
+        if n_words == 0:
+            return EMPTY_EVENTS, EMPTY_TRIGGERS
+        st = self._state
+        if self.format == "EVT3":
+            events, triggers = evt3.decode_words(np.frombuffer(data, "<u2", n_words), st)
+        elif self.format == "EVT2":
+            events, triggers = evt2.decode_words(np.frombuffer(data, "<u4", n_words), st)
+        else:
+            words = np.frombuffer(data, "<u4", 2 * n_words).reshape(-1, 2)
+            events, triggers = evt2.decode_words_21(words, st, endianness=self.endianness)
+        shift = self.time_shift_us
+        if shift:
+            events["t"] -= shift
+            triggers["t"] -= shift
+        return events, triggers
+
+    def finish(self) -> None:
+        """End of stream: count an incomplete last word (and EVT3 vector triplet) as damage."""
+        if self.format == "EVT3":
+            evt3.finish(self._state)
+        if self._tail:
+            self._state.damage("trailing_bytes", len(self._tail), self._state.words_seen)
+            self._tail = b""
+
+
+class RawReader:
+    """Header plus bounded-memory batches of a RAW file, open file object or byte iterator.
+
+    Parameters
+    ----------
+    source : str, Path, binary file object, or iterable of bytes
+        A path or binary stream starts with a RAW header unless ``format`` is given
+        (then it must start directly with event words).
+    chunk_bytes : int
+        Bytes read per batch (files and file objects).
+    format : str, optional
+        Decode as this format, without reading a header.
+    width, height : int, optional
+        Geometry (overrides the header's).
+    time_shift : bool
+        See :class:`StreamDecoder`.
+
+    Attributes
+    ----------
+    header : dict
+        As returned by :func:`capture.raw.parse_header` (``{}``-like when ``format`` was given).
+    header_size : int
+        Bytes of header before the words.
+    decoder : StreamDecoder
+        Holds ``stats`` after (and during) iteration.
+    size_bytes : int or None
+        Total size of a file source (for progress bars).
+    """
+
+    def __init__(self, source, *, chunk_bytes: int = DEFAULT_CHUNK_BYTES, format: str | None = None,
+                 width: int | None = None, height: int | None = None, time_shift: bool = False):
+        if chunk_bytes < 1:
+            raise ValueError(f"chunk_bytes must be >= 1, got {chunk_bytes}")
+        self.chunk_bytes = int(chunk_bytes)
+        self.name = str(source) if isinstance(source, (str, os.PathLike)) else getattr(source, "name", "<stream>")
+        self.size_bytes = None
+        self._close = None
+        if isinstance(source, (str, os.PathLike)):
+            path = Path(source)
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: no such RAW file")
+            self.size_bytes = path.stat().st_size
+            source = self._close = open(path, "rb")
+        self._file = None
+        if hasattr(source, "readinto") and getattr(source, "seekable", lambda: False)():
+            self._file = source                # read straight into an aligned, reused buffer
+            self._start = source.tell()
+            self._chunks = iter(())
+        elif hasattr(source, "read"):
+            self._chunks = iter(lambda: source.read(self.chunk_bytes), b"")
+        elif isinstance(source, (bytes, bytearray, memoryview)):
+            raise TypeError("pass bytes as [data] (an iterable of chunks) or wrap them in io.BytesIO")
+        else:
+            self._chunks = iter(source)
+        self._first = b""
+        if format is not None:
+            fmt = normalize_format(format, source=self.name)
+            self.header = {"format": fmt, "width": width, "height": height, "endianness": "little",
+                           "style": "none", "fields": {}}
+            self.header_size = 0
+        else:
+            self._read_header()
+            fmt = self.header["format"]
+            if fmt is None:
+                self.close()
+                raise RawFormatError(f"{self.name}: byte {self.header_size}: the header does not name "
+                                     "the event format; pass format='EVT2'|'EVT21'|'EVT3'")
+        if width is not None and height is not None:
+            self.header["width"], self.header["height"] = int(width), int(height)
+        self.format = fmt
+        self.width, self.height = self.header["width"], self.header["height"]
+        try:
+            time_base_us = int(self.header["fields"].get("time_base_us", 0))
+        except ValueError:
+            raise RawFormatError(f"{self.name}: header field time_base_us is not an integer") from None
+        self.decoder = StreamDecoder(fmt, endianness=self.header["endianness"], time_shift=time_shift,
+                                     width=self.width, height=self.height, time_base_us=time_base_us)
+
+    def _read_header(self) -> None:
+        if self._file is not None:
+            buf = self._file.read(MAX_HEADER_BYTES + 1)
+        else:
+            buf = b""
+            for chunk in self._chunks:
+                buf += bytes(chunk)
+                if len(buf) > MAX_HEADER_BYTES or _header_complete(buf):
+                    break
+        if not buf:
+            self.close()
+            raise RawFormatError(f"{self.name}: empty file (0 bytes)")
+        self.header, self.header_size = parse_header(buf, source=self.name)
+        if self._file is not None:
+            self._file.seek(self._start + self.header_size)
+        else:
+            self._first = memoryview(buf)[self.header_size:]
+
+    def _file_chunks(self) -> Iterator[np.ndarray]:
+        """Chunks of a seekable file read into one reused buffer (no per-chunk allocation)."""
+        if self._file is None:
+            return
+        left = None if self.size_bytes is None else self.size_bytes - self.header_size
+        buf = np.empty(max(1, self.chunk_bytes if left is None else min(self.chunk_bytes, left)), np.uint8)
+        while True:
+            n = self._file.readinto(buf)
+            if not n:
+                return
+            yield buf[:n]
+
+    def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Yield ``(events, triggers)`` per batch (either may be empty), then finish the decoder."""
+        try:
+            if len(self._first):
+                yield self.decoder.decode(self._first)
+                self._first = b""
+            for chunk in self._file_chunks():
+                yield self.decoder.decode(chunk)
+            for chunk in self._chunks:
+                yield self.decoder.decode(chunk)
+            self.decoder.finish()
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        if self._close is not None:
+            self._close.close()
+            self._close = None
+
+    def damage_message(self) -> str | None:
+        """One line naming the file, the first damaged byte and the counts, or None if undamaged."""
+        if not self.decoder.damaged:
+            return None
+        stats = self.decoder.stats
+        counts = ", ".join(f"{k}={stats[k]}" for k in DAMAGE_KEYS if stats[k])
+        where = stats["first_damage_byte"]
+        where = "?" if where is None else where + self.header_size
+        return f"{self.name}: damaged {self.format} data from byte {where}: {counts}"
+
+
+def _header_complete(buf: bytes) -> bool:
+    """True once ``buf`` holds the whole header (``% end`` or a byte after the last ``%`` line)."""
+    pos = 0
+    while buf[pos:pos + 1] == b"%":
+        nl = buf.find(b"\n", pos)
+        if nl < 0:
+            return False
+        if buf[pos:nl + 1].strip() == b"% end":
+            return True
+        pos = nl + 1
+    return pos < len(buf)
+
+
+def iter_chunks(source, *, chunk_bytes: int = DEFAULT_CHUNK_BYTES, format: str | None = None,
+                width: int | None = None, height: int | None = None,
+                time_shift: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Decode a RAW file (path or binary file object) or a byte iterator in bounded memory.
+
+    Yields ``(events, triggers)`` batches (EVENT_DTYPE, TRIGGER_DTYPE) in stream order;
+    concatenated, they equal :func:`capture.raw.read` of the same file. Parameters as in
+    :class:`RawReader`; use ``RawReader`` directly to see the header and damage counters.
+    """
+    return iter(RawReader(source, chunk_bytes=chunk_bytes, format=format, width=width,
+                          height=height, time_shift=time_shift))
