@@ -23,9 +23,10 @@ STAT_KEYS = (
     "others",                    # OTHERS / CONTINUED / IMU words (no CD events)
     "unknown_words",             # words of an undefined type (ignored)
     "trailing_bytes",            # bytes of an incomplete word at the end of the stream (damage)
+    "incomplete_group_words",    # EVT3: words of a vector triplet cut off by the end of the stream
 )
 DAMAGE_KEYS = ("events_without_y", "vectors_without_base", "events_out_of_bounds",
-               "time_backward", "unknown_words", "trailing_bytes")
+               "time_backward", "unknown_words", "trailing_bytes", "incomplete_group_words")
 """Counters that indicate damaged or foreign input."""
 
 
@@ -48,6 +49,7 @@ class DecoderState:
     base_pol: int = 0              # EVT3: vector polarity
     first_th: int | None = None    # first TIME_HIGH payload (for Metavision's time shift)
     words_seen: int = 0            # words consumed so far (for damage offsets)
+    last_words: tuple = ()         # EVT3: the stream's last (up to 3) words, to spot a cut-off triplet
     first_damage_word: int | None = None
     stats: dict = field(default_factory=lambda: dict.fromkeys(STAT_KEYS, 0))
 
@@ -77,20 +79,19 @@ def triggers_from(t_us: np.ndarray, channel: np.ndarray, value: np.ndarray) -> n
     return out
 
 
-def drop_out_of_bounds(events: np.ndarray, st: DecoderState, locate) -> np.ndarray:
-    """Remove events outside the sensor (when the geometry is known) and count them as damage.
+def in_bounds(x: np.ndarray, y: np.ndarray, st: DecoderState, locate) -> np.ndarray | None:
+    """Mask of events inside the sensor, or None if all are (or the geometry is unknown).
 
-    ``locate(i)`` gives the stream word index that produced event ``i`` (for the damage offset).
+    Events outside are counted as damage; ``locate(i)`` gives the stream word index that
+    produced event ``i`` (for the damage offset).
     """
-    if st.width is None or st.height is None or len(events) == 0:
-        return events
-    x, y = events["x"], events["y"]
+    if st.width is None or st.height is None or len(x) == 0:
+        return None
     if int(x.max()) < st.width and int(y.max()) < st.height:
-        return events
-    bad = (x >= st.width) | (y >= st.height)
-    first = int(np.argmax(bad))
-    st.damage("events_out_of_bounds", np.count_nonzero(bad), locate(first))
-    return events[~bad]
+        return None
+    keep = (x < st.width) & (y < st.height)
+    st.damage("events_out_of_bounds", len(keep) - np.count_nonzero(keep), locate(int(np.argmin(keep))))
+    return keep
 
 
 def check_events(events: np.ndarray, triggers: np.ndarray | None, width: int, height: int,

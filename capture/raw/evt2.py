@@ -18,9 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events,
-                                  drop_out_of_bounds, make_events, merge_order, time_high_words,
-                                  triggers_from)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, in_bounds,
+                                  make_events, merge_order, time_high_words, triggers_from)
 
 TIME_HIGH_WRAP = 1 << 28
 """TIME_HIGH values per loop; one loop is 2^34 µs."""
@@ -30,109 +29,111 @@ _OTHER_TYPES = (0xD, 0xE, 0xF)
 _UNKNOWN_TYPES = (0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x9, 0xB, 0xC)
 
 
-def _start(typ: np.ndarray, th_payload, st: DecoderState) -> int:
-    """Skip words before the first TIME_HIGH; returns how many to skip (-1: all)."""
-    hits = np.flatnonzero(typ == _TIME_HIGH)
-    if len(hits) == 0:
-        return -1
-    first = int(hits[0])
-    st.started = True
-    st.first_th = st.th_raw = int(th_payload(first))
-    st.t_us = st.th_raw << 6
-    return first
-
-
-def _time_high(typ, head, w0: int, st: DecoderState):
-    """Positions of TIME_HIGH words and the extended TIME_HIGH in force after each."""
-    thpos = np.flatnonzero(typ == _TIME_HIGH)
-    thv = (head[thpos] & 0x0FFFFFFF).astype(np.int64)
+def _time_high(thv: np.ndarray, thpos: np.ndarray, w0: int, st: DecoderState) -> np.ndarray:
+    """Extended TIME_HIGH values (loops counted) for the TIME_HIGH payloads ``thv``."""
     step = np.diff(thv, prepend=st.th_raw)
     wrap = step < -(TIME_HIGH_WRAP // 2)
     loops = st.loops + np.cumsum(wrap)
-    high = thv + loops * TIME_HIGH_WRAP
     back = (step < 0) & ~wrap
     if back.any():
         st.damage("time_backward", np.count_nonzero(back), w0 + int(thpos[np.argmax(back)]))
     st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
     st.stats["time_loops"] += int(loops[-1] - st.loops)
     st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
-    return thpos, high
+    return thv + loops * TIME_HIGH_WRAP
 
 
 def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
-    """Shared EVT2 / EVT2.1 decoder: ``head`` are the u32 headers, ``mask`` the EVT2.1 masks."""
+    """Shared EVT2 / EVT2.1 decoder: ``head`` are the u32 headers, ``mask`` the EVT2.1 masks.
+
+    CD words are nearly all words, so every other word type is classified on the small
+    subset of non-CD words only.
+    """
     w0 = st.words_seen
     st.words_seen += len(head)
     st.stats["words"] += len(head)
     if not st.started:
-        skip = _start(head >> 28, lambda i: head[i] & 0x0FFFFFFF, st)
-        if skip < 0:
+        is_th = (head >> 28) == _TIME_HIGH
+        skip = int(np.argmax(is_th)) if len(head) else 0
+        if len(head) == 0 or not is_th[skip]:
             st.stats["words_before_time_high"] += len(head)
             return EMPTY_EVENTS, EMPTY_TRIGGERS
         st.stats["words_before_time_high"] += skip
+        st.started = True
+        st.first_th = st.th_raw = int(head[skip] & 0x0FFFFFFF)
+        st.t_us = st.th_raw << 6
         head = head[skip:]
         mask = mask[skip:] if mask is not None else None
         w0 += skip
-    typ = head >> 28
-    counts = np.bincount(typ, minlength=16)
-    st.stats["others"] += int(counts[list(_OTHER_TYPES)].sum())
-    n_unknown = int(counts[list(_UNKNOWN_TYPES)].sum())
-    if n_unknown:
-        st.damage("unknown_words", n_unknown, w0 + int(np.argmax(np.isin(typ, _UNKNOWN_TYPES))))
+    n = len(head)
+    cd = head < (2 << 28)                      # types 0x0 (OFF) and 0x1 (ON)
+    n_cd = int(np.count_nonzero(cd))
     high_start = st.t_us >> 6
-    if counts[_TIME_HIGH]:
-        thpos, high = _time_high(typ, head, w0, st)
-        high_table = np.concatenate(([high_start], high))
-    else:
-        thpos, high_table = np.zeros(0, np.int64), np.array([high_start], np.int64)
-
     triggers = EMPTY_TRIGGERS
-    if counts[_EXT_TRIGGER]:
-        tr = np.flatnonzero(typ == _EXT_TRIGGER)
-        h = head[tr]
-        t_tr = (high_table[np.searchsorted(thpos, tr)] << 6) | ((h >> 22) & 0x3F)
-        triggers = triggers_from(t_tr, (h >> 8) & 0x1F, h & 1)
-        st.stats["triggers"] += len(triggers)
-
-    n_cd = int(counts[_CD_OFF] + counts[_CD_ON])
-    events = EMPTY_EVENTS
-    if n_cd:
-        if n_cd == len(head):
-            cdpos = None
-            hc = head
-            high_cd = np.repeat(high_table, np.diff(np.concatenate(([0], thpos, [len(head)]))))
+    if n_cd < n:
+        noncd = np.flatnonzero(~cd)
+        ntyp = head[noncd] >> 28
+        counts = np.bincount(ntyp, minlength=16)
+        st.stats["others"] += int(counts[list(_OTHER_TYPES)].sum())
+        n_unknown = int(counts[list(_UNKNOWN_TYPES)].sum())
+        if n_unknown:
+            st.damage("unknown_words", n_unknown, w0 + int(noncd[np.argmax(np.isin(ntyp, _UNKNOWN_TYPES))]))
+        th_k = np.flatnonzero(ntyp == _TIME_HIGH)
+        thpos = noncd[th_k]
+        if len(thpos):
+            high = _time_high((head[thpos] & 0x0FFFFFFF).astype(np.int64), thpos, w0, st)
+            high_table = np.concatenate(([high_start], high))
+            st.t_us = int(high[-1]) << 6
         else:
-            cdpos = np.flatnonzero(typ <= _CD_ON)
-            hc = head[cdpos]
-            seg = np.diff(np.concatenate(([0], np.searchsorted(cdpos, thpos), [n_cd])))
-            high_cd = np.repeat(high_table, seg)
-        if mask is None:
-            events = make_events(n_cd)
-            np.bitwise_or(high_cd << 6, (hc >> 22) & 0x3F, out=events["t"])
-            events["x"] = (hc >> 11) & 0x7FF
-            events["y"] = hc & 0x7FF
-            events["p"] = hc >> 28
+            high_table = np.array([high_start], np.int64)
+        if counts[_EXT_TRIGGER]:
+            tr = noncd[ntyp == _EXT_TRIGGER]
+            h = head[tr]
+            t_tr = (high_table[np.searchsorted(thpos, tr)] << 6) | ((h >> 22) & 0x3F)
+            triggers = triggers_from(t_tr, (h >> 8) & 0x1F, h & 1)
+            st.stats["triggers"] += len(triggers)
+        cd_before_th = thpos - th_k            # CD words before each TIME_HIGH
+    else:
+        noncd = None
+        high_table = np.array([high_start], np.int64)
+        cd_before_th = np.zeros(0, np.int64)
+    if n_cd == 0:
+        return EMPTY_EVENTS, triggers
+    cdpos = None if noncd is None else np.flatnonzero(cd)
+    hc = head if cdpos is None else head.take(cdpos)
+    seg = np.diff(cd_before_th, prepend=0, append=n_cd)
+    t_word = np.repeat(high_table << 6, seg)   # TIME_HIGH part of t for every CD word
+    t_word |= (hc >> 22) & 0x3F
+    x = (hc >> 11) & 0x7FF
+    y = hc & 0x7FF
+    p = hc >> 28
 
-            def locate(i):
-                return w0 + (i if cdpos is None else int(cdpos[i]))
-        else:
-            mc = mask if cdpos is None else mask[cdpos]
-            cnt = np.bitwise_count(mc).astype(np.int64)
-            events = make_events(int(cnt.sum()))
-            events["t"] = np.repeat((high_cd << 6) | ((hc >> 22) & 0x3F), cnt)
-            bits = np.unpackbits(mc.astype("<u4").view(np.uint8).reshape(-1, 4), axis=1, bitorder="little")
-            events["x"] = np.minimum(np.repeat((hc >> 11) & 0x7FF, cnt) + np.nonzero(bits)[1], 0xFFFF)
-            events["y"] = np.repeat(hc & 0x7FF, cnt)
-            events["p"] = np.repeat(hc >> 28, cnt)
-            ends = np.cumsum(cnt)
+    def word_of(j):                            # stream word index of CD word j
+        return w0 + (j if cdpos is None else int(cdpos[j]))
 
-            def locate(i):
-                j = int(np.searchsorted(ends, i, side="right"))
-                return w0 + (j if cdpos is None else int(cdpos[j]))
-        events = drop_out_of_bounds(events, st, locate)
-        st.stats["events"] += len(events)
-    if len(thpos):
-        st.t_us = int(high_table[-1]) << 6
+    if mask is None:
+        keep = in_bounds(x, y, st, word_of)
+        events = make_events(n_cd)
+        events["t"] = t_word
+        events["x"] = x
+        events["y"] = y
+        events["p"] = p
+    else:
+        mc = mask if cdpos is None else mask.take(cdpos)
+        cnt = np.bitwise_count(mc)
+        events = make_events(int(cnt.sum(dtype=np.int64)))
+        bits = np.unpackbits(mc.astype("<u4").view(np.uint8).reshape(-1, 4), axis=1, bitorder="little")
+        x = np.repeat(x, cnt) + (np.flatnonzero(bits.view(bool)) & 31).astype(np.uint32)
+        y = np.repeat(y, cnt)
+        ends = np.cumsum(cnt, dtype=np.int64)
+        keep = in_bounds(x, y, st, lambda i: word_of(int(np.searchsorted(ends, i, side="right"))))
+        events["t"] = np.repeat(t_word, cnt)
+        events["x"] = np.minimum(x, 0xFFFF)
+        events["y"] = y
+        events["p"] = np.repeat(p, cnt)
+    if keep is not None:
+        events = events[keep]
+    st.stats["events"] += len(events)
     return events, triggers
 
 

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, drop_out_of_bounds,
-                                  make_events, triggers_from)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, in_bounds, make_events,
+                                  triggers_from)
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
@@ -31,46 +31,72 @@ _OTHER_TYPES = (0x7, 0xD, 0xE, 0xF)
 _UNKNOWN_TYPES = (0x1, 0x9, 0xB, 0xC)
 
 
-def _time_table(typ, pay, st: DecoderState, w0: int):
-    """Times (µs) after each TIME_LOW / TIME_HIGH word, and those words' positions.
+def _select_table() -> np.ndarray:
+    """``table[m, k]``: index of the k-th set bit of the 12-bit mask ``m`` (uint8, 4096 x 12)."""
+    bits = np.unpackbits(np.arange(4096, dtype="<u2").view(np.uint8).reshape(-1, 2), axis=1,
+                         bitorder="little")[:, :12]
+    table = np.zeros((4096, 12), np.uint8)
+    rows, cols = np.nonzero(bits)
+    n_set = bits.sum(1, dtype=np.int64)
+    rank = np.arange(len(rows)) - np.repeat(np.cumsum(n_set) - n_set, n_set)
+    table[rows, rank] = cols
+    return table
 
-    Returns ``(tpos, t_after)``: ``t_after[i]`` is the time in force right after word
-    ``tpos[i]``. Updates the time part of ``st`` and the time statistics.
+
+_SET_BIT = _select_table()
+
+
+def _running(mask: np.ndarray) -> np.ndarray:
+    """Inclusive running count of ``mask`` (int32 when it fits: much faster than int64)."""
+    return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
+
+
+def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> np.ndarray:
+    """Time (µs) in force after each state word, from its TIME_LOW / TIME_HIGH words.
+
+    ``styp`` / ``spay`` are the types / payloads of the batch's state words (positions
+    ``spos``). Returns int64 of ``len(styp) + 1`` with the time before the batch first.
+    Updates the time part of ``st`` and its statistics.
     """
-    is_th = typ == _TIME_HIGH
-    tpos = np.flatnonzero(is_th | (typ == _TIME_LOW))
-    tth = is_th[tpos]
-    tpay = pay[tpos].astype(np.int64)
-    thv = tpay[tth]
-    if len(thv):
+    is_th = styp == _TIME_HIGH
+    is_time = is_th | (styp == _TIME_LOW)
+    tsel = np.flatnonzero(is_time)
+    if len(tsel) == 0:
+        return np.full(len(styp) + 1, st.t_us, np.int64)
+    tth = is_th.take(tsel)
+    tpay = spay.take(tsel)
+    thk = np.flatnonzero(tth)                   # TIME_HIGH words among the time words
+    setter = ~tth                               # words that set time_low (TIME_LOW, changed TIME_HIGH)
+    high_table = np.empty(len(thk) + 1, np.int64)
+    high_table[0] = st.t_us >> 12
+    if len(thk):
+        thv = tpay.take(thk).astype(np.int64)
         step = np.diff(thv, prepend=st.th_raw)
         wrap = step < -(TIME_HIGH_WRAP // 2)
         loops = st.loops + np.cumsum(wrap)
-        high = thv + loops * TIME_HIGH_WRAP
+        np.add(thv, loops * TIME_HIGH_WRAP, out=high_table[1:])
         back = (step < 0) & ~wrap
         if back.any():
-            st.damage("time_backward", np.count_nonzero(back), w0 + int(tpos[tth][np.argmax(back)]))
+            st.damage("time_backward", np.count_nonzero(back), w0 + int(spos[tsel[thk[np.argmax(back)]]]))
         st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
         st.stats["time_loops"] += int(loops[-1] - st.loops)
+        st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
         # TIME_LOW resets to 0 when TIME_HIGH changes; a repeated TIME_HIGH keeps it.
-        setter = ~tth
-        setter[tth] = step != 0
-    else:
-        high = thv
-        setter = ~tth
-    high_ord = np.cumsum(tth) - 1
-    high_now = np.concatenate(([st.t_us >> 12], high))[high_ord + 1]
-    low_val = np.where(tth, 0, tpay)
-    low_ord = np.cumsum(setter) - 1
-    low_now = np.concatenate(([st.tl], low_val[setter]))[low_ord + 1]
-    t_after = (high_now << 12) | low_now
-    if len(thv):
-        st.th_raw = int(thv[-1])
-        st.loops = int(loops[-1])
-    if len(tpos):
-        st.t_us = int(t_after[-1])
-        st.tl = int(low_now[-1])
-    return tpos, t_after
+        setter[thk] = step != 0
+    low_sel = np.flatnonzero(setter)
+    low_table = np.empty(len(low_sel) + 1, np.int64)
+    low_table[0] = st.tl
+    low_table[1:] = tpay.take(low_sel)
+    low_table[1:][tth.take(low_sel)] = 0
+    t_time = np.empty(len(tsel) + 1, np.int64)  # time after each time word
+    t_time[0] = st.t_us
+    np.left_shift(high_table.take(_running(tth)), 12, out=t_time[1:])
+    t_time[1:] |= low_table.take(_running(setter))
+    st.t_us, st.tl = int(t_time[-1]), int(t_time[-1] & 0xFFF)
+    t_state = np.empty(len(styp) + 1, np.int64)
+    t_state[0] = t_time[0]
+    t_state[1:] = t_time.take(_running(is_time))
+    return t_state
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -89,17 +115,27 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         CD events in stream order, t in µs (64-bit, unshifted).
     triggers : ndarray of TRIGGER_DTYPE
         External trigger events in stream order.
+
+    Notes
+    -----
+    The words that change decoder state (TIME_LOW/HIGH, ADDR_Y, VECT_BASE_X and the vector
+    words) are pulled out into a small "state table" where time, y and vector base are
+    forward-filled with running counts; every ADDR_X word then reads its state with one
+    index (its count of state words before it), and vector words expand through a
+    k-th-set-bit lookup table.
     """
     w = words
     w0 = st.words_seen
     st.words_seen += len(w)
     st.stats["words"] += len(w)
+    if len(w):
+        st.last_words = (st.last_words + tuple(int(v) for v in w[-3:]))[-3:]
     if not st.started:
-        hits = np.flatnonzero((w >> 12) == _TIME_HIGH)
-        if len(hits) == 0:
+        is_th = (w >> 12) == _TIME_HIGH
+        skip = int(np.argmax(is_th)) if len(w) else 0
+        if len(w) == 0 or not is_th[skip]:
             st.stats["words_before_time_high"] += len(w)
             return EMPTY_EVENTS, EMPTY_TRIGGERS
-        skip = int(hits[0])
         st.stats["words_before_time_high"] += skip
         w = w[skip:]
         w0 += skip
@@ -107,143 +143,167 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         st.first_th = st.th_raw = int(w[0] & 0xFFF)
         st.t_us = st.th_raw << 12
         st.tl = 0
-    if len(w) == 0:
-        return EMPTY_EVENTS, EMPTY_TRIGGERS
     typ = w >> 12
-    counts = np.bincount(typ, minlength=16)
-    st.stats["others"] += int(counts[list(_OTHER_TYPES)].sum())
-    n_unknown = int(counts[list(_UNKNOWN_TYPES)].sum())
-    if n_unknown:
-        first = int(np.argmax(np.isin(typ, _UNKNOWN_TYPES)))
-        st.damage("unknown_words", n_unknown, w0 + first)
     pay = w & 0x0FFF
-    t_start = st.t_us
-    if counts[_TIME_LOW] or counts[_TIME_HIGH]:
-        tpos, t_after = _time_table(typ, pay, st, w0)
-        t_table = np.concatenate(([t_start], t_after))
-    else:
-        tpos, t_table = None, np.array([t_start], dtype=np.int64)
+    is_x = typ == _ADDR_X
+    is_vec = (typ >> 1) == (_VECT_12 >> 1)          # VECT_12 or VECT_8
+    is_state = (typ == _ADDR_Y) | (typ == _TIME_LOW) | (typ == _TIME_HIGH) | (typ == _VECT_BASE_X) | is_vec
+    is_tr = typ == _EXT_TRIGGER
+    n_x, n_vec, n_state, n_tr = (int(np.count_nonzero(m)) for m in (is_x, is_vec, is_state, is_tr))
+    n_rest = len(w) - n_x - n_state - n_tr         # OTHERS / CONTINUED / IMU / unknown words
+    if n_rest:
+        st.stats["others"] += int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        n_unknown = n_rest - int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        if n_unknown:
+            st.damage("unknown_words", n_unknown, w0 + int(np.argmax(np.isin(typ, _UNKNOWN_TYPES))))
 
-    def times_at(pos):
-        if tpos is None:
-            return np.full(len(pos), t_start, dtype=np.int64)
-        return t_table[np.searchsorted(tpos, pos)]
+    # State table: time, y and vector base in force after each state word.
+    spos = np.flatnonzero(is_state)
+    styp = typ.take(spos)
+    spay = pay.take(spos)
+    t_state = _time_after(styp, spay, st, w0, spos)
+    s_is_y = styp == _ADDR_Y
+    y_sel = np.flatnonzero(s_is_y)
+    y_table = np.empty(len(y_sel) + 1, np.uint16)
+    y_table[0] = st.y
+    y_table[1:] = spay.take(y_sel)
+    y_state = y_table.take(np.concatenate(([0], _running(s_is_y))))
+    st.y = int(y_table[-1])
+
+    only_x_and_state = n_tr + n_rest == 0
+    if only_x_and_state:
+        def state_index(pos):                        # state words before each ADDR_X word
+            return pos - np.arange(len(pos))         # (every word before is a state word or ADDR_X)
+    else:
+        cs = _running(is_state)
+
+        def state_index(pos):
+            return cs.take(pos)
 
     triggers = EMPTY_TRIGGERS
-    if counts[_EXT_TRIGGER]:
-        tr = np.flatnonzero(typ == _EXT_TRIGGER)
-        tp = pay[tr]
-        triggers = triggers_from(times_at(tr), (tp >> 8) & 0xF, tp & 1)
+    if n_tr:
+        tr = np.flatnonzero(is_tr)
+        tp = pay.take(tr)
+        triggers = triggers_from(t_state.take(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
         st.stats["triggers"] += len(triggers)
 
-    n_vec = int(counts[_VECT_12] + counts[_VECT_8])
-    y_before = st.y
-    if counts[_ADDR_Y]:
-        ypos = np.flatnonzero(typ == _ADDR_Y)
-        y_table = np.concatenate((np.array([y_before], np.uint16), pay[ypos]))
-        st.y = int(y_table[-1])
-    else:
-        ypos, y_table = None, np.array([y_before], np.uint16)
-    if n_vec == 0:
-        _update_vector_base(typ, pay, st, counts)
-        if counts[_ADDR_X] == 0:
-            return EMPTY_EVENTS, triggers
+    vsel = np.flatnonzero((styp >> 1) == (_VECT_12 >> 1)) if n_vec else None
     if n_vec:
-        epos = np.flatnonzero((typ == _ADDR_X) | ((typ >> 1) == (_VECT_12 >> 1)))
+        v_base, v_pol, v_mask, v_count = _vector_words(styp, spay, vsel, st, w0, spos)
     else:
-        epos = np.flatnonzero(typ == _ADDR_X)
-    pe = pay[epos]
-    t_e = times_at(epos)
-    y_e = y_table[np.searchsorted(ypos, epos)] if ypos is not None else np.full(len(epos), y_before, np.uint16)
-    y_ok = y_e < 2048
+        vb = np.flatnonzero(styp == _VECT_BASE_X)
+        if len(vb):
+            last = int(spay[vb[-1]])
+            st.base_x, st.base_pol = last & 0x7FF, last >> 11
+    if n_x == 0 and (n_vec == 0 or int(v_count.sum()) == 0):
+        return EMPTY_EVENTS, triggers
 
+    xpos = np.flatnonzero(is_x)
+    kx = state_index(xpos)
+    px = pay.take(xpos)
     if n_vec == 0:
-        if not y_ok.all():
-            _count_bad_y(y_e, y_ok, np.ones(len(epos), np.int64), epos, w0, st)
-            epos, pe, t_e, y_e = epos[y_ok], pe[y_ok], t_e[y_ok], y_e[y_ok]
-        ev = make_events(len(epos))
-        ev["t"] = t_e
-        ev["x"] = pe & 0x7FF
-        ev["y"] = y_e
-        ev["p"] = pe >> 11
-        ev = drop_out_of_bounds(ev, st, lambda i: w0 + int(epos[i]))
-        st.stats["events"] += len(ev)
-        return ev, triggers
+        t = t_state.take(kx)
+        y = y_state.take(kx)
+        x = px & 0x7FF
+        p = px >> 11
+        def locate(i):
+            return w0 + int(xpos[i])
+    else:
+        # Insert each vector word's events among the ADDR_X events: ADDR_X words before
+        # vector word j = its position minus the state words before it (and other words).
+        vpos = spos.take(vsel)
+        x_before_v = vpos - vsel if only_x_and_state else np.searchsorted(xpos, vpos)
+        v_first = np.cumsum(v_count) - v_count
+        total = n_x + int(v_count.sum())
+        row = np.repeat(np.arange(len(vsel)), v_count)
+        at_v = (x_before_v + v_first).take(row) + (np.arange(len(row)) - v_first.take(row))
+        is_v_event = np.zeros(total, bool)
+        is_v_event[at_v] = True
+        at_x = np.flatnonzero(~is_v_event)
+        k = np.empty(total, kx.dtype)
+        k[at_x] = kx
+        k[at_v] = vsel.take(row) + 1
+        t = t_state.take(k)
+        y = y_state.take(k)
+        x = np.empty(total, np.uint16)
+        x[at_x] = px & 0x7FF
+        rank = np.arange(len(row)) - v_first.take(row)
+        x[at_v] = v_base.take(row) + _SET_BIT[v_mask.take(row), rank]
+        p = np.empty(total, np.uint16)
+        p[at_x] = px >> 11
+        p[at_v] = v_pol.take(row)
 
-    # Vectors: per vector word, its base x is the last VECT_BASE_X plus the widths of the
-    # vector words between it and this word (12 per VECT_12, 8 per VECT_8).
-    isv = (typ[epos] >> 1) == (_VECT_12 >> 1)
-    vsel = np.flatnonzero(isv)
-    vpos = epos[vsel]
-    is12 = typ[vpos] == _VECT_12
+        def locate(i):
+            j = np.searchsorted(at_v, i)
+            return w0 + int(vpos[row[j]] if j < len(at_v) and at_v[j] == i else xpos[np.searchsorted(at_x, i)])
+    keep = None
+    if int(y.max()) >= 2048:                     # no ADDR_Y yet (0xFFFF) or another system's
+        keep = y < 2048
+        none = y == 0xFFFF
+        if none.any():
+            st.damage("events_without_y", np.count_nonzero(none), locate(int(np.argmax(none))))
+        st.stats["events_other_system"] += int(len(y) - np.count_nonzero(keep) - np.count_nonzero(none))
+    bounds = in_bounds(x, y if keep is None else np.where(keep, y, 0), st, locate)
+    if bounds is not None:
+        keep = bounds if keep is None else keep & bounds
+    if keep is not None:
+        t, x, y, p = (a[keep] for a in (t, x, y, p))
+    ev = make_events(len(t))
+    ev["t"] = t
+    ev["x"] = x
+    ev["y"] = y
+    ev["p"] = p
+    st.stats["events"] += len(ev)
+    return ev, triggers
+
+
+def _vector_words(styp, spay, vsel, st: DecoderState, w0: int, spos):
+    """Base x, polarity, 12-bit mask and event count of every vector word (``vsel`` in the state table).
+
+    A vector word's base is its VECT_BASE_X plus the widths (12 / 8) of the vector words
+    between them; words with no VECT_BASE_X yet in the stream get no events (damage).
+    """
+    is12 = styp.take(vsel) == _VECT_12
     widths = np.where(is12, 12, 8)
-    cw = np.cumsum(widths)
-    cw_excl = cw - widths
-    total = int(cw[-1])
-    vmask = pe[vsel]
-    vmask = np.where(is12, vmask, vmask & 0xFF)
-    if counts[_VECT_BASE_X]:
-        vbpos = np.flatnonzero(typ == _VECT_BASE_X)
-        vbpay = pay[vbpos]
-        jb = np.searchsorted(vbpos, vpos) - 1
-        start_cw = np.concatenate((cw_excl, [total]))[np.searchsorted(vpos, vbpos)]
+    cw_excl = np.cumsum(widths) - widths
+    total = int(cw_excl[-1] + widths[-1])
+    mask = spay.take(vsel)
+    mask[~is12] &= 0xFF
+    s_is_vb = styp == _VECT_BASE_X
+    vb_sel = np.flatnonzero(s_is_vb)
+    if len(vb_sel):
+        vbpay = spay.take(vb_sel)
+        jb = _running(s_is_vb).take(vsel) - 1         # last VECT_BASE_X before each vector word
+        start_cw = np.append(cw_excl, total).take(np.searchsorted(vsel, vb_sel))
         has = jb >= 0
         jbc = np.maximum(jb, 0)
-        base = np.where(has, (vbpay[jbc] & 0x7FF).astype(np.int64) + cw_excl - start_cw[jbc],
-                        st.base_x + cw_excl)
-        pol = np.where(has, vbpay[jbc] >> 11, st.base_pol)
+        vb = vbpay.take(jbc)
+        base = np.where(has, (vb & 0x7FF).astype(np.int64) + cw_excl - start_cw.take(jbc), st.base_x + cw_excl)
+        pol = np.where(has, vb >> 11, st.base_pol)
         no_base = ~has & (st.base_x < 0)
         st.base_x = int(vbpay[-1] & 0x7FF) + total - int(start_cw[-1])
         st.base_pol = int(vbpay[-1] >> 11)
     else:
         base = st.base_x + cw_excl
-        pol = np.full(len(vpos), st.base_pol)
-        no_base = np.full(len(vpos), st.base_x < 0)
+        pol = np.full(len(vsel), st.base_pol)
+        no_base = np.full(len(vsel), st.base_x < 0)
         if st.base_x >= 0:
             st.base_x += total
-    base_e = (pe & 0x7FF).astype(np.int64)
-    base_e[vsel] = base
-    p_e = pe >> 11
-    p_e[vsel] = pol
-    cnt = np.ones(len(epos), np.int64)
-    cnt[vsel] = np.bitwise_count(vmask)
     if no_base.any():
-        lost = vsel[no_base]
-        st.damage("vectors_without_base", int(cnt[lost].sum()), w0 + int(vpos[no_base][0]))
-        cnt[lost] = 0
-        vmask[no_base] = 0
-    if not y_ok.all():
-        _count_bad_y(y_e, y_ok, cnt, epos, w0, st)
-        cnt[~y_ok] = 0
-        vmask[~y_ok[vsel]] = 0
-    ev = make_events(int(cnt.sum()))
-    ev["t"] = np.repeat(t_e, cnt)
-    ev["y"] = np.repeat(y_e, cnt)
-    ev["p"] = np.repeat(p_e, cnt)
-    xs = np.repeat(base_e, cnt)
-    bits = np.unpackbits(vmask.astype("<u2").view(np.uint8).reshape(-1, 2), axis=1, bitorder="little")
-    xs[np.repeat(isv, cnt)] += np.nonzero(bits)[1]
-    ev["x"] = np.minimum(xs, 0xFFFF)
-    ends = np.cumsum(cnt)
-    ev = drop_out_of_bounds(ev, st, lambda i: w0 + int(epos[np.searchsorted(ends, i, side="right")]))
-    st.stats["events"] += len(ev)
-    return ev, triggers
+        st.damage("vectors_without_base", int(np.bitwise_count(mask[no_base]).sum()),
+                  w0 + int(spos[vsel[np.argmax(no_base)]]))
+        mask[no_base] = 0
+    count = np.bitwise_count(mask).astype(np.int64)
+    return np.minimum(base, 0xFFF0).astype(np.uint16), pol.astype(np.uint16), mask, count
 
 
-def _count_bad_y(y_e, y_ok, cnt, epos, w0, st: DecoderState) -> None:
-    """Count events dropped for a missing ADDR_Y (damage) or another system's ADDR_Y."""
-    none = y_e == 0xFFFF
-    if none.any():
-        st.damage("events_without_y", int(cnt[none].sum()), w0 + int(epos[np.argmax(none)]))
-    other = ~y_ok & ~none
-    st.stats["events_other_system"] += int(cnt[other].sum())
-
-
-def _update_vector_base(typ, pay, st: DecoderState, counts) -> None:
-    """Carry the vector base across a batch that has VECT_BASE_X words but no vectors."""
-    if counts[_VECT_BASE_X]:
-        last = int(pay[np.flatnonzero(typ == _VECT_BASE_X)[-1]])
-        st.base_x, st.base_pol = last & 0x7FF, last >> 11
+def finish(st: DecoderState) -> None:
+    """End of stream: count a vector triplet cut short (``VECT_BASE_X [VECT_12 [VECT_12]]``) as damage."""
+    types = [v >> 12 for v in st.last_words]
+    for k in (3, 2, 1):
+        if len(types) >= k and types[-k:] == [_VECT_BASE_X, _VECT_12, _VECT_12][:k]:
+            st.damage("incomplete_group_words", k, st.words_seen - k)
+            return
 
 
 _MIN_VECTOR_EVENTS = 5

@@ -134,7 +134,9 @@ class StreamDecoder:
         return events, triggers
 
     def finish(self) -> None:
-        """End of stream: count the bytes of an incomplete last word as damage."""
+        """End of stream: count an incomplete last word (and EVT3 vector triplet) as damage."""
+        if self.format == "EVT3":
+            evt3.finish(self._state)
         if self._tail:
             self._state.damage("trailing_bytes", len(self._tail), self._state.words_seen)
             self._tail = b""
@@ -183,7 +185,12 @@ class RawReader:
                 raise FileNotFoundError(f"{path}: no such RAW file")
             self.size_bytes = path.stat().st_size
             source = self._close = open(path, "rb")
-        if hasattr(source, "read"):
+        self._file = None
+        if hasattr(source, "readinto") and getattr(source, "seekable", lambda: False)():
+            self._file = source                # read straight into an aligned, reused buffer
+            self._start = source.tell()
+            self._chunks = iter(())
+        elif hasattr(source, "read"):
             self._chunks = iter(lambda: source.read(self.chunk_bytes), b"")
         elif isinstance(source, (bytes, bytearray, memoryview)):
             raise TypeError("pass bytes as [data] (an iterable of chunks) or wrap them in io.BytesIO")
@@ -214,23 +221,43 @@ class RawReader:
                                      width=self.width, height=self.height, time_base_us=time_base_us)
 
     def _read_header(self) -> None:
-        buf = b""
-        for chunk in self._chunks:
-            buf += bytes(chunk)
-            if len(buf) > MAX_HEADER_BYTES or _header_complete(buf):
-                break
+        if self._file is not None:
+            buf = self._file.read(MAX_HEADER_BYTES + 1)
+        else:
+            buf = b""
+            for chunk in self._chunks:
+                buf += bytes(chunk)
+                if len(buf) > MAX_HEADER_BYTES or _header_complete(buf):
+                    break
         if not buf:
             self.close()
             raise RawFormatError(f"{self.name}: empty file (0 bytes)")
         self.header, self.header_size = parse_header(buf, source=self.name)
-        self._first = buf[self.header_size:]
+        if self._file is not None:
+            self._file.seek(self._start + self.header_size)
+        else:
+            self._first = memoryview(buf)[self.header_size:]
+
+    def _file_chunks(self) -> Iterator[np.ndarray]:
+        """Chunks of a seekable file read into one reused buffer (no per-chunk allocation)."""
+        if self._file is None:
+            return
+        left = None if self.size_bytes is None else self.size_bytes - self.header_size
+        buf = np.empty(max(1, self.chunk_bytes if left is None else min(self.chunk_bytes, left)), np.uint8)
+        while True:
+            n = self._file.readinto(buf)
+            if not n:
+                return
+            yield buf[:n]
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Yield ``(events, triggers)`` per batch (either may be empty), then finish the decoder."""
         try:
-            if self._first:
+            if len(self._first):
                 yield self.decoder.decode(self._first)
                 self._first = b""
+            for chunk in self._file_chunks():
+                yield self.decoder.decode(chunk)
             for chunk in self._chunks:
                 yield self.decoder.decode(chunk)
             self.decoder.finish()
