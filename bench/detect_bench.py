@@ -78,7 +78,7 @@ def evaluate(tr, cam, ball, span_us, width, height):
     inside = (c[:, 0] - c[:, 2] >= 0) & (c[:, 1] - c[:, 2] >= 0) & (c[:, 0] + c[:, 2] <= width - 1) & \
              (c[:, 1] + c[:, 2] <= height - 1)
     samples = samples[inside]
-    out = dict(err=np.zeros(0), rerr=np.zeros(0), verr=np.zeros(0), hit=np.zeros(len(samples), bool), false=0)
+    out = dict(err=np.zeros(0), rerr=np.zeros(0), verr=np.zeros(0), vabs=np.zeros(0), hit=np.zeros(len(samples), bool), false=0)
     if len(tr) == 0:
         return out
     c = ball.circle(cam, tr.t_us * 1e-6)
@@ -88,6 +88,7 @@ def evaluate(tr, cam, ball, span_us, width, height):
     out["false"] = int((~good).sum())
     out["err"], out["rerr"] = err[good], np.abs(tr.r - c[:, 2])[good]
     out["verr"] = (np.hypot(tr.vx - v[:, 0], tr.vy - v[:, 1]) / np.hypot(v[:, 0], v[:, 1]))[good]
+    out["vabs"] = np.hypot(tr.vx - v[:, 0], tr.vy - v[:, 1])[good]
     good_t = tr.t_us[good]
     if len(good_t) and len(samples):
         j = np.searchsorted(good_t, samples)
@@ -146,6 +147,7 @@ def main(argv=None):
         err = np.concatenate([r["err"] for r in sel])
         rerr = np.concatenate([r["rerr"] for r in sel])
         verr = np.concatenate([r["verr"] for r in sel])
+        vabs = np.concatenate([r["vabs"] for r in sel])
         hit = np.concatenate([r["hit"] for r in sel])
         span = sum(r["span_s"] for r in sel)
         n_ev = sum(r["n_events"] for r in sel)
@@ -153,7 +155,8 @@ def main(argv=None):
         print(f"\n{name} ({len(sel)} cases, {n_ev / span / 1e6:.1f} Mev/s mean input rate)")
         print(f"  centre error median {np.median(err):.3f} px, p95 {np.percentile(err, 95):.3f} px (goal median <= 1)")
         print(f"  radius error median {np.median(rerr):.3f} px, p95 {np.percentile(rerr, 95):.3f} px (goal <= 1)")
-        print(f"  velocity error median {100 * np.median(verr):.2f} %, p95 {100 * np.percentile(verr, 95):.2f} %")
+        print(f"  velocity error median {100 * np.median(verr):.2f} %, p95 {100 * np.percentile(verr, 95):.2f} % "
+              f"(median {np.median(vabs):.1f} px/s, p95 {np.percentile(vabs, 95):.1f} px/s)")
         print(f"  recall {100 * hit.mean():.2f} % (goal >= 99 %); false detections "
               f"{sum(r['false'] for r in sel) / span:.2f} /s")
         print(f"  speed {n_ev / t_tr / 1e6:.2f} Mev/s ({n_ev / t_tr / 1e7:.2f} x 10 Mev/s); "

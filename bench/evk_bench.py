@@ -8,8 +8,9 @@ runs as from moving edges, half isolated; about 3 bytes/event):
 1. pyusb's one-pending-read cost: the pyusb Python layer's time per ``dev.read`` call, and
    reader throughput versus read size, for large device packets and for short packets (one
    host read per device packet, as with the EVK4's ~7 KiB transfers in the shared recording);
-2. raw recording (``capture.evk.record`` with no decoding) from the fake at max pace to disk:
-   Mev/s, MB/s, CPU s per Mev, drops; peer: writing the same bytes from memory to disk;
+2. raw recording (``capture.evk.record`` with no decoding) to disk: the writer's drain rate
+   with the fake at max pace (peer: writing the same bytes from memory to disk), then drops,
+   queue peak and CPU with the fake releasing data in real time at 1x, 2x, 4x the rate;
 3. raw + live decoding into the session store, fed in real time (``pace="recorded"``): whether
    decoding keeps up, how far behind it gets (queue peak) and when it has caught up;
 4. decoding the RAW file into a session after the recording (catch-up path).
@@ -145,18 +146,26 @@ def main() -> None:
         print(f"  ~7 KiB short device packets, read 1024 KiB: {mbs:7.0f} MB/s  ({us:6.1f} us/read; "
               f"one read per device packet)")
 
-        print("\n2. raw recording, fake at max pace -> disk")
+        print("\n2. raw recording -> disk (no decoding)")
         peer = disk_peer(payload, tmp / "peer.raw")
         (tmp / "peer.raw").unlink()
         with evk.open(backend=FakeEVK(src, packet_bytes=131072)) as cam:
+            cam.queue_bytes = 2 * len(payload)  # measure the writer's drain rate, not drops
             st = evk.record(cam, tmp / "rec.raw")
-        dur = st.duration_s - 0.1  # minus the final 100 ms end-of-stream timeout
-        print(f"  {mev / dur:7.1f} Mev/s  {st.payload_bytes / dur / 1e6:6.0f} MB/s  "
-              f"CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev  dropped {st.dropped_bytes} B  time jumps {st.time_jumps}  "
-              f"full reads {st.n_full_reads}/{st.n_reads}  gap between reads {st.read_gap_us:.1f} us")
+        dur = st.stream_s - 0.1  # minus the final 100 ms end-of-stream timeout
+        print(f"  fake at max pace: {mev / dur:7.1f} Mev/s  {st.payload_bytes / dur / 1e6:6.0f} MB/s  "
+              f"CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev  queue peak {st.queue_peak_bytes / 1e6:.0f} MB")
         print(f"  peer (same bytes memory -> disk): {peer:.0f} MB/s; recorder/peer = "
               f"{st.payload_bytes / dur / 1e6 / peer:.2f}")
         assert (tmp / "rec.raw").stat().st_size == st.header_bytes + len(payload)
+        for speed in (1.0, 2.0, 4.0):
+            with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded", speed=speed)) as cam:
+                st = evk.record(cam, tmp / "rec_paced.raw")  # default 256 MiB queue
+            print(f"  fed at {args.rate_mev_s * speed:4.0f} Mev/s ({st.payload_bytes / st.stream_s / 1e6:4.0f} MB/s "
+                  f"achieved): dropped {st.dropped_bytes} B, time jumps {st.time_jumps}, queue peak "
+                  f"{st.queue_peak_bytes / 1e6:.1f} MB, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev, "
+                  f"gap between reads {st.read_gap_us:.1f} us, full reads {st.n_full_reads}/{st.n_reads}")
+        (tmp / "rec_paced.raw").unlink()
 
         print(f"\n3. raw + live decode into the session store, fed in real time ({args.rate_mev_s:.0f} Mev/s)")
         stream_s = len(payload) / (len(payload) / n_ev * args.rate_mev_s * 1e6)
@@ -169,12 +178,6 @@ def main() -> None:
               f"-> decode+store {mev / st.duration_s:.1f} Mev/s, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev; "
               f"queue peak {st.queue_peak_bytes / 1e6:.0f} MB; dropped {st.dropped_bytes} B; "
               f"events {st.n_events / 1e6:.1f} M")
-        with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded")) as cam:
-            st = evk.record(cam, tmp / "rec3.raw")
-        print(f"  raw only, same real-time feed: done after {st.duration_s:.2f} s, queue peak "
-              f"{st.queue_peak_bytes / 1e6:.1f} MB, dropped {st.dropped_bytes} B, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev, "
-              f"gap between reads {st.read_gap_us:.1f} us")
-
         print("\n4. catch-up: decode the recorded RAW (alone, then into a session) afterwards")
         t, c = time.perf_counter(), time.process_time()
         n = sum(len(events) for events, _ in raw.iter_chunks(tmp / "rec.raw", chunk_bytes=8 << 20))

@@ -54,7 +54,7 @@ def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     u, v = x - mx, y - my
     a = np.stack([u, v, np.ones_like(u)], axis=1)
     b = u * u + v * v
-    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    sol = np.linalg.solve(a.T @ a + 1e-9 * np.eye(3), a.T @ b)
     cx, cy = sol[0] / 2.0, sol[1] / 2.0
     r2 = sol[2] + cx * cx + cy * cy
     return float(cx + mx), float(cy + my), float(np.sqrt(max(r2, 0.0)))
@@ -157,9 +157,12 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
             keep = new_keep
         if keep.sum() < 5:
             return None
+        moved = np.hypot(fcx - cx, fcy - cy)
         cx, cy, r = fcx, fcy, fr
         rms = float(np.sqrt(np.mean(res[keep] ** 2)))
         n_in = int(keep.sum())
+        if moved < 0.05:  # sectors would not change
+            break
     if not (r_range[0] <= r <= r_range[1]):
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2

@@ -89,22 +89,30 @@ class FrameDetector:
     min_foreground : float
         Least foreground fraction of a circle's disk once the background model
         has seen ``warmup_frames`` frames.
+    background_scale : float
+        The background model runs on the frame resized by this factor (speed).
     """
 
     def __init__(self, r_range=(5.0, 100.0), *, blur_sigma_px: float = 1.5, circularity: float = 0.75,
-                 canny_high: float = 120.0, min_foreground: float = 0.3, warmup_frames: int = 3):
+                 canny_high: float = 120.0, min_foreground: float = 0.3, warmup_frames: int = 3,
+                 background_scale: float = 0.25):
         self.r_range = (float(r_range[0]), float(r_range[1]))
         self.blur_sigma_px = float(blur_sigma_px)
         self.circularity = float(circularity)
         self.canny_high = float(canny_high)
         self.min_foreground = float(min_foreground)
         self.warmup_frames = int(warmup_frames)
+        self.background_scale = float(background_scale)
         self._bg = cv2.createBackgroundSubtractorMOG2(history=50, varThreshold=16, detectShadows=False)
         self._seen = 0
 
     def detect(self, image: np.ndarray, *, roi: tuple[float, float, float] | None = None,
-               r_range: tuple[float, float] | None = None, max_circles: int = 3) -> list[FrameCircle]:
+               r_range: tuple[float, float] | None = None, max_circles: int = 3,
+               search: bool = True) -> list[FrameCircle]:
         """Circles in ``image`` (grey or BGR), best first.
+
+        Every frame of the sequence should pass through here (it updates the
+        background model); ``search=False`` only does that.
 
         Parameters
         ----------
@@ -117,8 +125,12 @@ class FrameDetector:
             Radius range for this frame (default: the detector's).
         """
         gray = _gray(image)
-        fg = self._bg.apply(gray)
+        sc = self.background_scale
+        small = cv2.resize(gray, None, fx=sc, fy=sc, interpolation=cv2.INTER_AREA) if sc != 1 else gray
+        fg = self._bg.apply(small)
         self._seen += 1
+        if not search:
+            return []
         use_fg = self._seen > self.warmup_frames
         rmin, rmax = r_range if r_range is not None else self.r_range
         h, w = gray.shape
@@ -136,15 +148,13 @@ class FrameDetector:
         if circles is None:
             return []
         out = []
-        yy, xx = np.mgrid[y0:y1, x0:x1]
         for rank, (cx, cy, r) in enumerate(circles.reshape(-1, 3)[: 4 * max_circles]):
             fine = _refine(crop, float(cx), float(cy), float(r))
             if fine is not None:
                 cx, cy, r = fine
             cx, cy = cx + x0, cy + y0
             if use_fg:
-                disk = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
-                frac = float(np.mean(fg[y0:y1, x0:x1][disk] > 0)) if disk.any() else 0.0
+                frac = self._foreground(fg, cx * sc, cy * sc, max(r * sc, 0.5))
                 if frac < self.min_foreground:
                     continue
             else:
@@ -153,3 +163,17 @@ class FrameDetector:
             if len(out) >= max_circles:
                 break
         return out
+
+    @staticmethod
+    def _foreground(fg: np.ndarray, cx: float, cy: float, r: float) -> float:
+        """Foreground fraction of the disk ``(cx, cy, r)`` in mask ``fg`` (mask pixels)."""
+        h, w = fg.shape
+        x0, x1 = max(0, int(np.floor(cx - r))), min(w, int(np.ceil(cx + r)) + 1)
+        y0, y1 = max(0, int(np.floor(cy - r))), min(h, int(np.ceil(cy + r)) + 1)
+        if x1 <= x0 or y1 <= y0:
+            return 0.0
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        disk = (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+        if not disk.any():
+            return float(fg[min(max(int(round(cy)), 0), h - 1), min(max(int(round(cx)), 0), w - 1)] > 0)
+        return float(np.mean(fg[y0:y1, x0:x1][disk] > 0))

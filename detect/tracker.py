@@ -36,6 +36,9 @@ from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
 from detect.track import Track
 
+_MAX_FIT_EVENTS = 4000
+"""Events per circle fit (an even subsample in time of the candidate's events)."""
+
 
 class BallTracker:
     """Streaming ball tracker over an event stream and optional frames.
@@ -148,7 +151,7 @@ class BallTracker:
             return
         ev = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
         self._pending = []
-        t = ev["t"]
+        t = np.ascontiguousarray(ev["t"])  # binary search on a strided field would copy it each time
         t_last = int(t[-1])
         i = 0
         while i < len(ev):
@@ -157,15 +160,14 @@ class BallTracker:
             if b1 > t_last and not final:
                 break
             j = int(np.searchsorted(t, b1, side="left"))
-            self._process_block(ev[i:j], b0)
+            self._process_block(ev[i:j], t[i:j], b0)
             i = j
         if i < len(ev):
             self._pending = [ev[i:]]
 
-    def _process_block(self, ev: np.ndarray, b0: int) -> None:
+    def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int) -> None:
         x = ev["x"].astype(np.int32)
         y = ev["y"].astype(np.int32)
-        t = ev["t"]
         if self._hot is not None:
             pixel = y * self.width + x
             self._hot.update(pixel)
@@ -187,17 +189,27 @@ class BallTracker:
             self._search_slice(t, x, y, m)
 
     def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
-        """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s)."""
+        """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s).
+
+        Without ``center0`` (search), isolated events are dropped first and the
+        centroid is the start; with it (tracking), the window around the
+        prediction is small enough that noise hardly reaches it and the fit's
+        k-th-outermost rule absorbs the few strays.
+        """
+        if len(t) > _MAX_FIT_EVENTS:  # even subsample in time
+            sub = np.linspace(0, len(t) - 1, _MAX_FIT_EVENTS).astype(np.int64)
+            t, x, y = t[sub], x[sub], y[sub]
         dt_s = (t - m) * 1e-6
         xc = x - velocity[0] * dt_s
         yc = y - velocity[1] * dt_s
         border = (x == 0) | (y == 0) | (x == self.width - 1) | (y == self.height - 1)
-        good = density_filter(xc, yc, min_neighbours=1)
         if center0 is None:
+            good = density_filter(xc, yc, min_neighbours=1)
             if not good.any():
                 return None
-            center0 = (float(xc[good].mean()), float(yc[good].mean()))
-        return fit_circle(xc[good], yc[good], center0=center0, r_range=r_range, ignore=border[good])
+            xc, yc, border = xc[good], yc[good], border[good]
+            center0 = (float(xc.mean()), float(yc.mean()))
+        return fit_circle(xc, yc, center0=center0, r_range=r_range, ignore=border)
 
     def _track_slice(self, t, x, y, m) -> None:
         kf = self._kf
@@ -300,12 +312,9 @@ class BallTracker:
 
     def _process_frame(self, image: np.ndarray, t_us: int) -> None:
         kf = self._kf
-        if kf is None:
-            self._frames.detect(image)  # keeps the background model current
-            return
-        if t_us < kf.t_us:
-            self.frames_skipped += 1
-            self._frames.detect(image)
+        if kf is None or t_us < kf.t_us:
+            self.frames_skipped += kf is not None
+            self._frames.detect(image, search=False)  # keeps the background model current
             return
         state, cov = kf.predict(t_us)
         cx, cy, r = state[0], state[1], state[6]

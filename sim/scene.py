@@ -357,8 +357,15 @@ class Scene:
             x0, y0, x1, y1 = obj.bbox(self.camera, t[0], t[-1])
             if x1 < umin or x0 > umax or y1 < vmin or y0 > vmax:
                 continue
-            I, cov = obj.render(self.camera, u, v, t, self.light, self.ambient)
-            out += cov * (I - out)
+            if x0 <= umin and x1 >= umax and y0 <= vmin and y1 >= vmax:
+                I, cov = obj.render(self.camera, u, v, t, self.light, self.ambient)
+                out += cov * (I - out)
+                continue
+            sel = np.flatnonzero((u >= x0) & (u <= x1) & (v >= y0) & (v <= y1))
+            if sel.size:
+                I, cov = obj.render(self.camera, u[sel], v[sel], t, self.light, self.ambient)
+                part = out[:, sel]
+                out[:, sel] = part + cov * (I - part)
         return out
 
     def max_speed_px_s(self, t_s: float) -> float:

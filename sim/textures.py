@@ -86,15 +86,16 @@ def soccer(q: np.ndarray, edge_rad: float = 0.01, *, pentagon_albedo: float = 0.
     """Truncated-icosahedron soccer ball: 12 dark pentagons, 20 white hexagons, seams."""
     g, pent = _soccer_faces()
     q = np.asarray(q, dtype=np.float64)
-    s = q @ g.T
-    i1 = np.argmax(s, axis=1)
-    rows = np.arange(q.shape[0])
-    s1 = s[rows, i1]
-    s[rows, i1] = -np.inf
-    i2 = np.argmax(s, axis=1)
-    s2 = s[rows, i2]
+    s = q.astype(np.float32) @ g.T.astype(np.float32)  # (M, 32) face scores
+    i1 = s.argmax(axis=1)[:, None]
+    s1 = np.take_along_axis(s, i1, axis=1)[:, 0]
+    np.put_along_axis(s, i1, -np.inf, axis=1)
+    i2 = s.argmax(axis=1)[:, None]
+    s2 = np.take_along_axis(s, i2, axis=1)[:, 0]
+    i1, i2 = i1[:, 0], i2[:, 0]
     # distance to the plane through the origin that separates the two best faces
-    dist = (s1 - s2) / np.linalg.norm(g[i1] - g[i2], axis=1)
+    gd = g[i1] - g[i2]
+    dist = (s1 - s2) / np.sqrt(np.sum(gd * gd, axis=1))
     panel = np.where(pent[i1], pentagon_albedo, hexagon_albedo)
     w = _seam_weight(dist, seam_half_rad, edge_rad)
     return panel + w * (seam_albedo - panel)

@@ -46,6 +46,16 @@ def _residuals(theta, points, values, image1, center1, scale):
     return np.where(visible, values - sampled, values - values.mean())
 
 
+def _grid_residuals(angle, directions, points, values, image1, center1, scale):
+    """:func:`_residuals` for rotation ``angle`` about each of ``directions`` (D, 3); returns (D, P)."""
+    d = len(directions)
+    pts = np.broadcast_to(points, (d, *points.shape)).reshape(-1, 3)
+    q = rotate_quaternion(pts, np.repeat(directions, len(points), axis=0), np.full(len(pts), angle)) * scale
+    sampled = map_coordinates(image1, [q[:, 1] + center1[1], q[:, 0] + center1[0]], order=1, mode="nearest")
+    res = np.where(q[:, 2] < 0, np.tile(values, d) - sampled, np.tile(values - values.mean(), d))
+    return res.reshape(d, len(points))
+
+
 def estimate_image_pair(frame0, frame1, dt_s: float, circle0, circle1, *, n_directions: int = 300,
                         n_angles: int = 24, grid_pixels: int = 1500, seed: int = 0):
     """Angular velocity (rad/s, (3,)) registering ``frame1`` to ``frame0``.
@@ -69,11 +79,11 @@ def estimate_image_pair(frame0, frame1, dt_s: float, circle0, circle1, *, n_dire
     dirs = fibonacci_sphere(n_directions)
     angles = np.linspace(np.pi / n_angles, np.pi, n_angles)
     best, best_cost = np.zeros(3), np.sum(_residuals(np.zeros(3), pts, vals, f1, c1, scale) ** 2)
-    for a in angles:
-        for d in dirs:
-            cost = np.sum(_residuals(a * d, pts, vals, f1, c1, scale) ** 2)
-            if cost < best_cost:
-                best, best_cost = a * d, cost
+    for a in angles:  # all directions at once for each angle
+        cost = np.sum(_grid_residuals(a, dirs, pts, vals, f1, c1, scale) ** 2, axis=1)
+        j = int(np.argmin(cost))
+        if cost[j] < best_cost:
+            best, best_cost = a * dirs[j], cost[j]
     pts, vals = _ball_pixels(f0, c0, r0, 0.9, None, rng)
     res = least_squares(_residuals, best, args=(pts, vals, f1, c1, scale), x_scale=0.05, max_nfev=200)
     return res.x / dt_s

@@ -27,14 +27,14 @@ def lift(dx_px: np.ndarray, dy_px: np.ndarray, radius_px: float) -> np.ndarray:
 
 
 def rotate_quaternion(points: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
-    """Rotate ``points`` (N, 3) by ``angle_rad`` (N,) about unit ``axis`` (3,): ``p' = q p q*``.
+    """Rotate ``points`` (N, 3) by ``angle_rad`` (N,) about unit ``axis`` ((3,) or (N, 3)): ``p' = q p q*``.
 
     ``q = (cos(a/2), axis sin(a/2))``; evaluated as ``p' = p + 2 s (u x p) + 2 u x (u x p)``
     with ``s = cos(a/2)``, ``u = axis sin(a/2)`` (the expanded Hamilton product).
     """
     half = 0.5 * np.asarray(angle_rad)[:, None]
     s = np.cos(half)
-    u = np.asarray(axis, dtype=np.float64)[None, :] * np.sin(half)
+    u = np.asarray(axis, dtype=np.float64) * np.sin(half)
     uxp = np.cross(u, points)
     return points + 2.0 * s * uxp + 2.0 * np.cross(u, uxp)
 

@@ -34,9 +34,10 @@ class Gap:
 
 
 class Chunk(NamedTuple):
-    """``nbytes`` of stream data at the start of ``buffer`` (a pooled read buffer)."""
+    """``nbytes`` of stream data at the start of ``buffer`` (a pooled read buffer, or a
+    ``bytes`` copy of a short read)."""
 
-    buffer: array.array
+    buffer: array.array | bytes
     nbytes: int
 
     @property
@@ -106,9 +107,11 @@ class ByteQueue:
 class Reader(threading.Thread):
     """Reader thread: back-to-back bulk reads on the data endpoint into a :class:`ByteQueue`.
 
-    Reads go straight into pooled buffers (no copy), so the endpoint is without a pending
-    request only for pyusb's call overhead between reads; the consumer hands each buffer
-    back with :meth:`release` once written. :attr:`gap_s` totals that request-less time.
+    Reads go straight into pooled buffers (no copy; short reads, under a quarter of the
+    buffer, are copied out so that small chunks do not pin big buffers), so the endpoint is
+    without a pending request only for pyusb's call overhead between reads; the consumer
+    hands each chunk back with :meth:`release` once written. :attr:`gap_s` totals that
+    request-less time.
 
     Timeouts without data are normal (idle sensor) and only counted. Any other USB error
     (stall, unplug, I/O) ends the thread with :attr:`error` set; everything read before it
@@ -167,7 +170,8 @@ class Reader(threading.Thread):
 
     def release(self, chunk: Chunk) -> None:
         """Give a consumed chunk's buffer back to the pool (any thread)."""
-        self._free.append(chunk.buffer)
+        if isinstance(chunk.buffer, array.array):
+            self._free.append(chunk.buffer)
 
     @staticmethod
     def drain(dev, ep: int, max_packet: int) -> int:
@@ -219,8 +223,15 @@ class Reader(threading.Thread):
                 self.bytes_read += n
                 if n == size:
                     self.n_full_reads += 1
-                if buf is not None and queue.put(Chunk(buf, n)):
-                    buf = self._buffer()
+                if n * 4 < size:  # short read: copy it out, keep the big buffer (bounded memory)
+                    chunk = Chunk(memoryview(target)[:n].tobytes(), n)
+                elif buf is not None:
+                    chunk = Chunk(buf, n)
+                else:
+                    chunk = None
+                if chunk is not None and queue.put(chunk):
+                    if chunk.buffer is buf:
+                        buf = self._buffer()
                 else:  # queue full: the data is lost, counted and marked
                     self.dropped_bytes += n
                     self.n_overflows += 1

@@ -61,6 +61,25 @@ class DecoderState:
                 self.first_damage_word = int(word_index)
 
 
+def xy_view(events: np.ndarray) -> np.ndarray:
+    """``x | y << 16`` of every event as one little-endian uint32 view (one strided write for both)."""
+    if len(events) == 0:
+        return np.zeros(0, "<u4")
+    return np.ndarray((len(events),), dtype="<u4", buffer=events, offset=EVENT_DTYPE.fields["x"][1],
+                      strides=(EVENT_DTYPE.itemsize,))
+
+
+def first_of_type(words: np.ndarray, shift: int, word_type: int) -> int:
+    """Index of the first word with ``word >> shift == word_type`` (-1 if none); looks at a short prefix first."""
+    for stop in (64, len(words)):
+        hits = np.flatnonzero((words[:stop] >> shift) == word_type)
+        if len(hits):
+            return int(hits[0])
+        if stop >= len(words):
+            break
+    return -1
+
+
 def make_events(n: int) -> np.ndarray:
     """Uninitialised EVENT_DTYPE array of length ``n``."""
     return np.empty(n, dtype=EVENT_DTYPE)
@@ -155,3 +174,22 @@ def time_high_words(high: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarr
     prev = np.repeat(high - gap, count)
     value = np.minimum(prev + stride * (rank + 1), np.repeat(high, count))
     return count, item, value
+
+
+def _as_void(a: np.ndarray) -> np.ndarray:
+    """Records as opaque bytes: NumPy copies those ~20x faster than multi-field structs."""
+    return a.view(np.dtype((np.void, a.dtype.itemsize)))
+
+
+def select(records: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``records[keep]`` for a structured array, fast."""
+    return _as_void(records)[keep].view(records.dtype)
+
+
+def concat(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
+    """``np.concatenate(parts)`` for structured arrays of ``dtype``, fast; empty list -> empty array."""
+    if not parts:
+        return np.zeros(0, dtype)
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate([_as_void(p) for p in parts]).view(dtype)

@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, in_bounds,
-                                  make_events, merge_order, time_high_words, triggers_from)
+                                  first_of_type, make_events, merge_order, select, time_high_words,
+                                  triggers_from, xy_view)
 
 TIME_HIGH_WRAP = 1 << 28
 """TIME_HIGH values per loop; one loop is 2^34 µs."""
@@ -53,9 +54,8 @@ def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tupl
     st.words_seen += len(head)
     st.stats["words"] += len(head)
     if not st.started:
-        is_th = (head >> 28) == _TIME_HIGH
-        skip = int(np.argmax(is_th)) if len(head) else 0
-        if len(head) == 0 or not is_th[skip]:
+        skip = first_of_type(head, 28, _TIME_HIGH)
+        if skip < 0:
             st.stats["words_before_time_high"] += len(head)
             return EMPTY_EVENTS, EMPTY_TRIGGERS
         st.stats["words_before_time_high"] += skip
@@ -71,7 +71,7 @@ def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tupl
     high_start = st.t_us >> 6
     triggers = EMPTY_TRIGGERS
     if n_cd < n:
-        noncd = np.flatnonzero(~cd)
+        noncd = np.flatnonzero(head >= (2 << 28))
         ntyp = head[noncd] >> 28
         counts = np.bincount(ntyp, minlength=16)
         st.stats["others"] += int(counts[list(_OTHER_TYPES)].sum())
@@ -99,40 +99,47 @@ def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tupl
         cd_before_th = np.zeros(0, np.int64)
     if n_cd == 0:
         return EMPTY_EVENTS, triggers
-    cdpos = None if noncd is None else np.flatnonzero(cd)
-    hc = head if cdpos is None else head.take(cdpos)
+    hc = head if noncd is None else head[cd]   # boolean compress: fast when nearly all are CD
     seg = np.diff(cd_before_th, prepend=0, append=n_cd)
-    t_word = np.repeat(high_table << 6, seg)   # TIME_HIGH part of t for every CD word
-    t_word |= (hc >> 22) & 0x3F
-    x = (hc >> 11) & 0x7FF
-    y = hc & 0x7FF
-    p = hc >> 28
+    t = np.repeat(high_table << 6, seg)        # TIME_HIGH part of t for every CD word
+    scratch = np.right_shift(hc, 22)           # one reused temporary keeps the working set small
+    scratch &= 0x3F
+    t |= scratch
 
     def word_of(j):                            # stream word index of CD word j
-        return w0 + (j if cdpos is None else int(cdpos[j]))
+        return w0 + (j if noncd is None else int(np.flatnonzero(cd)[j]))
 
     if mask is None:
-        keep = in_bounds(x, y, st, word_of)
         events = make_events(n_cd)
-        events["t"] = t_word
-        events["x"] = x
-        events["y"] = y
-        events["p"] = p
+        events["t"] = t
+        np.right_shift(hc, 11, out=scratch)
+        scratch &= 0x7FF                       # x
+        x_max = int(scratch.max())
+        y = hc & 0x7FF
+        y_max = int(y.max())
+        y <<= 16
+        scratch |= y
+        xy_view(events)[:] = scratch           # x and y in one strided write
+        np.right_shift(hc, 28, out=scratch)
+        events["p"] = scratch
+        if st.width is not None and st.height is not None and (x_max >= st.width or y_max >= st.height):
+            keep = in_bounds((hc >> 11) & 0x7FF, hc & 0x7FF, st, word_of)
+            events = select(events, keep)
     else:
-        mc = mask if cdpos is None else mask.take(cdpos)
+        mc = mask if noncd is None else mask[cd]
         cnt = np.bitwise_count(mc)
-        events = make_events(int(cnt.sum(dtype=np.int64)))
         bits = np.unpackbits(mc.astype("<u4").view(np.uint8).reshape(-1, 4), axis=1, bitorder="little")
-        x = np.repeat(x, cnt) + (np.flatnonzero(bits.view(bool)) & 31).astype(np.uint32)
-        y = np.repeat(y, cnt)
+        x = np.repeat((hc >> 11) & 0x7FF, cnt) + (np.flatnonzero(bits.view(bool)) & 31).astype(np.uint32)
+        y = np.repeat(hc & 0x7FF, cnt)
         ends = np.cumsum(cnt, dtype=np.int64)
         keep = in_bounds(x, y, st, lambda i: word_of(int(np.searchsorted(ends, i, side="right"))))
-        events["t"] = np.repeat(t_word, cnt)
+        events = make_events(int(ends[-1]))
+        events["t"] = np.repeat(t, cnt)
         events["x"] = np.minimum(x, 0xFFFF)
         events["y"] = y
-        events["p"] = np.repeat(p, cnt)
-    if keep is not None:
-        events = events[keep]
+        events["p"] = np.repeat(hc >> 28, cnt)
+        if keep is not None:
+            events = select(events, keep)
     st.stats["events"] += len(events)
     return events, triggers
 

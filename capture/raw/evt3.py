@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, in_bounds, make_events,
-                                  triggers_from)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, first_of_type, in_bounds,
+                                  make_events, triggers_from, xy_view)
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
@@ -131,9 +131,8 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     if len(w):
         st.last_words = (st.last_words + tuple(int(v) for v in w[-3:]))[-3:]
     if not st.started:
-        is_th = (w >> 12) == _TIME_HIGH
-        skip = int(np.argmax(is_th)) if len(w) else 0
-        if len(w) == 0 or not is_th[skip]:
+        skip = first_of_type(w, 12, _TIME_HIGH)
+        if skip < 0:
             st.stats["words_before_time_high"] += len(w)
             return EMPTY_EVENTS, EMPTY_TRIGGERS
         st.stats["words_before_time_high"] += skip
@@ -247,11 +246,13 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     if bounds is not None:
         keep = bounds if keep is None else keep & bounds
     if keep is not None:
-        t, x, y, p = (a[keep] for a in (t, x, y, p))
+        t, x, y, p = (a.compress(keep) for a in (t, x, y, p))
     ev = make_events(len(t))
     ev["t"] = t
-    ev["x"] = x
-    ev["y"] = y
+    xy = y.astype(np.uint32)
+    xy <<= 16
+    xy |= x
+    xy_view(ev)[:] = xy                          # x and y in one strided write
     ev["p"] = p
     st.stats["events"] += len(ev)
     return ev, triggers

@@ -11,6 +11,7 @@ import numpy as np
 
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 from capture.raw import evt2, evt3
+from capture.raw._common import concat
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
 from capture.raw.stream import DEFAULT_CHUNK_BYTES, WRAP_US, RawReader
@@ -97,8 +98,7 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
             raise RawFormatError(message)
         warnings.warn(message, RawDamageWarning, stacklevel=2)
     return RawFile(
-        events=np.concatenate(ev_parts) if len(ev_parts) > 1 else (ev_parts[0] if ev_parts else np.zeros(0, EVENT_DTYPE)),
-        triggers=np.concatenate(tr_parts) if tr_parts else np.zeros(0, TRIGGER_DTYPE),
+        events=concat(ev_parts, EVENT_DTYPE), triggers=concat(tr_parts, TRIGGER_DTYPE),
         width=int(reader.width), height=int(reader.height), format=reader.format,
         header=reader.header, stats=reader.decoder.stats, time_shift_us=reader.decoder.time_shift_us)
 
