@@ -21,13 +21,18 @@ DEMO_SPIN = {"rps": 30.0, "axis": (0.0, 0.0, -1.0)}
 """Spin of the demo ball: 30 rev/s of topspin for a ball flying to the right (+x)."""
 
 
-def make_demo_files(folder, *, seed: int = 0, quiet: bool = False) -> tuple[Path, Path, dict]:
-    """Simulate the demo rally into ``folder``: ``(raw_path, mp4_path, truth)``."""
+def make_demo_files(folder, *, seed: int = 0, duration_s: float | None = None,
+                    quiet: bool = False) -> tuple[Path, Path, dict]:
+    """Simulate the demo rally into ``folder``: ``(raw_path, mp4_path, truth)``.
+
+    ``duration_s`` shortens the rally (default: ``sim.rally``'s).
+    """
     import sim
 
     if not quiet:
         print("Simulating a volleyball rally (events, 120 fps frames, sync box)...", flush=True)
-    rec = sim.rally(seed=seed, **DEMO_SPIN)
+    kw = {} if duration_s is None else {"duration_s": duration_s}
+    rec = sim.rally(seed=seed, **DEMO_SPIN, **kw)
     paths = rec.save(folder, raw=True, video=True)
     return paths["raw"], paths["video"], rec.truth
 
@@ -52,14 +57,15 @@ def spin_summary(spin: dict, truth: dict, min_confidence: float = 0.5) -> dict:
 
 
 def run_demo(out, *, viewer: str = "none", speed: str = "recorded", quiet: bool = False,
-             analyse: bool = True, stop: threading.Event | None = None, seed: int = 0) -> int:
+             analyse: bool = True, stop: threading.Event | None = None, seed: int = 0,
+             duration_s: float | None = None) -> int:
     """Run the demo end to end into session directory ``out``; returns the exit code."""
     from capture.evk.fake import FakeEVK
     from capture.gopro import FakeGoPro, GoPro
     from capture.run import RecordSettings, print_summary, record_session
 
     with tempfile.TemporaryDirectory(prefix="courtside-demo-") as tmp:
-        raw_path, mp4_path, truth = make_demo_files(tmp, seed=seed, quiet=quiet)
+        raw_path, mp4_path, truth = make_demo_files(tmp, seed=seed, duration_s=duration_s, quiet=quiet)
         with FakeGoPro(mp4_path) as fake_gopro:
             settings = RecordSettings(
                 out=Path(out), backend=FakeEVK(raw_path, pace=speed), viewer=viewer, quiet=quiet,
@@ -67,7 +73,8 @@ def run_demo(out, *, viewer: str = "none", speed: str = "recorded", quiet: bool 
                 gopro_settings={"resolution": "1080", "fps": 120},
                 led_roi=tuple(truth["sync"]["led_box_px"]),
                 attrs={"demo": {"truth_rps": float(truth["rps"]),
-                                "truth_axis": [float(v) for v in truth["axis"]]}})
+                                "truth_axis": [float(v) for v in truth["axis"]],
+                                "truth_frame_t_us": [int(v) for v in truth["frames"]["t_us"]]}})
             result = record_session(settings, stop)
     print_summary(result)
     if result.replay is not None:

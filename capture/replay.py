@@ -38,6 +38,8 @@ class ReplayOptions:
     ----------
     window_us : int
         Spin window length, µs.
+    step_us : int
+        Time between the starts of two spin windows, µs.
     min_events : int
         Fewest ball events for a spin window.
     max_events : int
@@ -49,6 +51,7 @@ class ReplayOptions:
     """
 
     window_us: int = 2000
+    step_us: int = 5000
     min_events: int = 1500
     max_events: int = 30000
     method: str = "fast"
@@ -93,8 +96,8 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     import spin  # heavy import kept inside the unit of work
 
     options = options or ReplayOptions()
-    windows = spin_windows(events, track, window_us=options.window_us, min_events=options.min_events,
-                           max_events=options.max_events)
+    windows = spin_windows(events, track, window_us=options.window_us, step_us=options.step_us,
+                           min_events=options.min_events, max_events=options.max_events)
     return spin.to_columns(spin.estimate_windows(windows, method=options.method))
 
 
@@ -182,6 +185,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
     ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="spin window, µs")
+    ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
+                    help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
     ap.add_argument("--workers", type=int, default=1, help="processes for per-flight spin estimation")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -197,7 +202,8 @@ def main(argv=None) -> int:
             session_path = session_from_raw(src, out, args.mp4, progress, led_roi)
         else:
             session_path = src
-        opts = ReplayOptions(window_us=args.window_us, method=args.method, workers=args.workers)
+        opts = ReplayOptions(window_us=args.window_us, step_us=args.step_us, method=args.method,
+                             workers=args.workers)
         result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     except (SessionError, RecorderError, OSError, ValueError) as exc:
         print(f"replay: error: {exc}", file=sys.stderr)
