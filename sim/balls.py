@@ -63,7 +63,7 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
     width, height : int
         Sensor size (px).
     n_events : int or None
-        Stop at exactly this many events (None: run ``duration_s``).
+        Stop at this many events (fewer if ``duration_s`` runs out first; None: run ``duration_s``).
     seed : int
         Seed of every random draw (initial orientation, threshold mismatch, noise).
 
