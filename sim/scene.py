@@ -270,15 +270,18 @@ class Player:
         return body, head
 
     def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        """Fastest image motion (px/s): walking plus bobbing."""
         return abs(self.vx) + self.bob_px * np.pi * self.step_hz
 
     def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) over ``[t0_s, t1_s]``."""
         t = np.array([t0_s, t1_s])
         x = self.x0 + self.vx * t
         h = self.height_px
         return (x.min() - 0.16 * h - 2, self.y0 - h - self.bob_px - 2, x.max() + 0.16 * h + 2, self.y0 + 2)
 
     def render(self, cam: Camera, u, v, t_s, light, ambient):
+        """Brightness and anti-aliased coverage (K, N) at pixels ``(u, v)``, times ``t_s`` (K,)."""
         t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
         body, head = self._parts(t)
         covs, vals = [], []
@@ -289,7 +292,8 @@ class Player:
             cov = np.clip((1.0 - rho) * min(a, b) + 0.5, 0.0, 1.0)
             if kind == "body":
                 yrel = (v[None, :] - (cy - b)) / (2 * b)  # 0 at shoulders, 1 at feet
-                stripes = 0.15 * (np.sin(2 * np.pi * yrel * 6.0) > 0)
+                # six shirt stripes with ~1 px soft edges (no aliasing when the player bobs)
+                stripes = 0.15 * np.clip(0.5 + np.sin(2 * np.pi * 6.0 * yrel) * (2 * b) / (2 * np.pi * 6.0), 0, 1)
                 # shirt above 55 % of the height, shorts below, edge softened over ~1 px
                 m = np.clip((yrel - 0.55) * 2 * b + 0.5, 0, 1)
                 val = (1 - m) * (self.shirt - stripes) + m * self.shorts
