@@ -13,19 +13,22 @@ BALL_RADIUS_M = {"volleyball": 0.105, "soccer": 0.11, "basketball": 0.12, "tenni
 
 
 def make_ball(cam: Camera, *, texture: str, radius_px: float, center_px, velocity_px_s, accel_px_s2,
-              axis, omega_rad_s: float, R0, ball_radius_m: float | None = None, gain: float = 1.0) -> Ball:
+              axis, omega_rad_s: float, R0, ball_radius_m: float | None = None, gain: float = 1.0,
+              hits=()) -> Ball:
     """A :class:`Ball` whose image at ``t = 0`` is the circle ``(center_px, radius_px)``.
 
     In pinhole mode the ball is placed along the ray through ``center_px`` at the
     distance that gives ``radius_px``; image velocity/acceleration become motion
-    parallel to the image plane at that depth.
+    parallel to the image plane at that depth. ``hits`` holds
+    ``(t_s, velocity_px_s (2,), axis (3,), omega_rad_s)`` with image velocities.
     """
     c = np.asarray(center_px, np.float64)
     vel = np.asarray(velocity_px_s, np.float64)
     acc = np.asarray(accel_px_s2, np.float64)
     if not cam.pinhole:
         return Ball(texture=texture, radius=radius_px, center=[c[0], c[1], 0.0], velocity=[*vel, 0.0],
-                    accel=[*acc, 0.0], axis=axis, omega_rad_s=omega_rad_s, R0=R0, gain=gain)
+                    accel=[*acc, 0.0], axis=axis, omega_rad_s=omega_rad_s, R0=R0, gain=gain,
+                    hits=tuple((t, [v[0], v[1], 0.0], a, w) for t, v, a, w in hits))
     rm = BALL_RADIUS_M.get(texture, 0.1) if ball_radius_m is None else ball_radius_m
     dist = rm / np.sin(np.arctan(radius_px / cam.focal_px))
     ray = cam.rays(c[:1], c[1:2])[0]
@@ -33,7 +36,8 @@ def make_ball(cam: Camera, *, texture: str, radius_px: float, center_px, velocit
     z = centre[2]
     s = z / cam.focal_px
     return Ball(texture=texture, radius=rm, center=centre, velocity=[vel[0] * s, vel[1] * s, 0.0],
-                accel=[acc[0] * s, acc[1] * s, 0.0], axis=axis, omega_rad_s=omega_rad_s, R0=R0, gain=gain)
+                accel=[acc[0] * s, acc[1] * s, 0.0], axis=axis, omega_rad_s=omega_rad_s, R0=R0, gain=gain,
+                hits=tuple((t, [v[0] * s, v[1] * s, 0.0], a, w) for t, v, a, w in hits))
 
 
 def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1), radius_px: float = 100,
@@ -59,7 +63,7 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
     width, height : int
         Sensor size (px).
     n_events : int or None
-        Stop at exactly this many events (None: run ``duration_s``).
+        Stop at this many events (fewer if ``duration_s`` runs out first; None: run ``duration_s``).
     seed : int
         Seed of every random draw (initial orientation, threshold mismatch, noise).
 

@@ -7,7 +7,7 @@ a :class:`Recording`; :func:`rally` is the quick preset for the built-in demo.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,17 +46,15 @@ class Recording:
     truth: dict
     frames: np.ndarray | None = None
     frame_times_us: np.ndarray | None = None
-    extra: dict = field(default_factory=dict)
 
     def truth_track(self, visible_only: bool = True):
-        """Ground-truth ball circle as a :class:`detect.track.Track` (score 1, flight 0)."""
+        """Ground-truth ball circle as a :class:`detect.track.Track` (score 1, flight = segment)."""
         from detect.track import Track
 
         tr = self.truth["track"]
         keep = np.asarray(tr["visible"], bool) if visible_only else np.ones(len(tr["t_us"]), bool)
-        cols = {k: np.asarray(tr[k])[keep] for k in ("t_us", "cx", "cy", "r", "vx", "vy")}
-        n = int(keep.sum())
-        return Track(score=np.ones(n, np.float32), flight=np.zeros(n, np.int32), **cols)
+        cols = {k: np.asarray(tr[k])[keep] for k in ("t_us", "cx", "cy", "r", "vx", "vy", "flight")}
+        return Track(score=np.ones(int(keep.sum()), np.float32), **cols)
 
     def save(self, out_dir, **kw):
         """Write to ``out_dir`` (see :func:`sim.io.save_recording`); returns the written paths."""
@@ -84,7 +82,7 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
            sync: SyncBox | bool | None = None, threshold: float = 0.15, mismatch_sigma: float = 0.03,
            refractory_us: float = 0.0, step_px: float = 0.25, projection: str = "orthographic",
            focal_px: float = 1000.0, n_events: int | None = None, t0_us: int = 0,
-           track_dt_us: int = 1000, seed: int = 0) -> Recording:
+           track_dt_us: int = 1000, hits=(), seed: int = 0) -> Recording:
     """Simulate one ball flight across the sensor.
 
     Parameters
@@ -125,6 +123,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         Stop the ball simulation at this many events.
     track_dt_us : int
         Spacing (µs) of the ground-truth circle samples.
+    hits : sequence of dict
+        Hits or bounces, each ``{"t_s", "velocity_px_s", "rps", "axis"}``: from ``t_s``
+        (s after ``t0_us``) the ball flies on with that image velocity and spin.
+        Every piece is a flight: ``truth["segments"]`` lists each one's start time,
+        spin and velocity, ``truth["track"]["flight"]`` numbers them from 0.
 
     Returns
     -------
@@ -133,7 +136,7 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         ``center``/``velocity_px_s`` at the first event, the ballistic parameters
         (``start_px``, ``velocity0_px_s``, ``gravity_px_s2`` at ``t0_us``), the
         ground-truth circle ``track`` (``t_us``, ``cx``, ``cy``, ``r``, ``vx``, ``vy``,
-        ``visible``), ``distractors``, ``hot_pixels`` (x, y), ``noise_rate_hz``,
+        ``visible``, ``flight``), ``segments`` (see ``hits``), ``distractors``, ``hot_pixels`` (x, y), ``noise_rate_hz``,
         ``frames`` (fps, exposure, size, homography, times) and ``sync``.
     """
     rng = np.random.default_rng(seed)
@@ -151,8 +154,15 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     velocity_px_s = v0 if velocity_px_s is None else tuple(map(float, velocity_px_s))
     cam = Camera(width, height, projection, focal_px)
     R0 = random_rotation(orient_rng)
+    hit_list = []
+    for h in hits:
+        missing = {"t_s", "velocity_px_s", "rps", "axis"} - set(h)
+        if missing:
+            raise ValueError(f"hit {h!r} lacks {sorted(missing)}")
+        ax_h = unit(h["axis"]) * (1 if h["rps"] >= 0 else -1)
+        hit_list.append((float(h["t_s"]), tuple(map(float, h["velocity_px_s"])), ax_h, 2 * np.pi * abs(h["rps"])))
     ball = make_ball(cam, texture=texture, radius_px=radius_px, center_px=start_px, velocity_px_s=velocity_px_s,
-                     accel_px_s2=(0.0, g), axis=axis, omega_rad_s=omega, R0=R0)
+                     accel_px_s2=(0.0, g), axis=axis, omega_rad_s=omega, R0=R0, hits=hit_list)
     objects, dis_truth = [], []
     for kind in distractors:
         if kind == "player":
@@ -206,7 +216,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         "gravity_px_s2": g, "threshold": threshold, "mismatch_sigma": mismatch_sigma, "n_events": int(ev.size),
         "noise_rate_hz": noise_rate_hz, "hot_pixels": hot_xy, "distractors": dis_truth,
         "track": {"t_us": t_us, "cx": circ[:, 0], "cy": circ[:, 1], "r": circ[:, 2],
-                  "vx": vel[:, 0], "vy": vel[:, 1], "visible": visible},
+                  "vx": vel[:, 0], "vy": vel[:, 1], "visible": visible, "flight": ball.segment_at(ts)},
+        "segments": [{"t_start_us": t0_us + int(round(t_seg * 1e6)), "axis": ax_seg, "omega_rad_s": float(om_seg),
+                      "rps": float(om_seg / (2 * np.pi)),
+                      "velocity_px_s": ball.image_velocity(cam, [t_seg])[0]}
+                     for t_seg, ax_seg, om_seg in ball.segments()],
         "frames": None, "sync": None,
     }
     triggers = np.zeros(0, TRIGGER_DTYPE)

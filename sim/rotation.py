@@ -25,17 +25,24 @@ def axis_angle_matrices(axis, angles_rad) -> np.ndarray:
 
     Parameters
     ----------
-    axis : array_like, shape (3,)
-        Rotation axis (normalised here).
+    axis : array_like, shape (3,) or (K, 3)
+        Rotation axis, shared or one per angle (normalised here).
     angles_rad : array_like, shape (K,)
         Rotation angles in radians; positive angles turn counter-clockwise when
         looking down the axis (right-hand rule).
     """
-    k = skew(unit(axis))
     a = np.atleast_1d(np.asarray(angles_rad, dtype=np.float64))
     s = np.sin(a)[:, None, None]
     c = np.cos(a)[:, None, None]
-    return np.eye(3)[None] + s * k[None] + (1.0 - c) * (k @ k)[None]
+    axis = np.asarray(axis, dtype=np.float64)
+    if axis.ndim == 1:
+        k = skew(unit(axis))[None]
+    else:
+        n = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+        k = np.zeros((len(n), 3, 3))
+        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -n[:, 2], n[:, 1], -n[:, 0]
+        k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = n[:, 2], -n[:, 1], n[:, 0]
+    return np.eye(3)[None] + s * k + (1.0 - c) * (k @ k)
 
 
 def random_axes(rng: np.random.Generator, n: int) -> np.ndarray:

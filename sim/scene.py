@@ -68,11 +68,15 @@ class Camera:
 
 @dataclass
 class Ball:
-    """A textured ball in ballistic motion, spinning about a fixed axis.
+    """A textured ball in ballistic motion, spinning about a fixed axis, optionally hit.
 
     Centre ``c(t) = center + velocity t + accel t^2 / 2`` (scene units, s), orientation
     ``R(t) = exp(omega t [axis]x) R0``: ``R`` maps ball-frame points to camera-frame
     offsets, so a surface point at offset ``r`` moves with ``omega * cross(axis, r)``.
+
+    ``hits`` is a sequence of ``(t_s, velocity, axis, omega_rad_s)``: at ``t_s`` the
+    ball (where it is, as it is turned) takes a new velocity and spin - a hit or a
+    bounce. Each such piece is a segment; :meth:`segment_at` numbers them from 0.
     """
 
     texture: str = "volleyball"
@@ -85,6 +89,7 @@ class Ball:
     R0: np.ndarray = field(default_factory=lambda: np.eye(3))
     gain: float = 1.0
     texture_opts: dict = field(default_factory=dict)
+    hits: tuple = ()
 
     def __post_init__(self):
         self.texture_fn = get_texture(self.texture)
@@ -92,29 +97,65 @@ class Ball:
         self.velocity = np.asarray(self.velocity, np.float64).reshape(3)
         self.accel = np.asarray(self.accel, np.float64).reshape(3)
         self.axis = unit(self.axis)
-        if self.omega_rad_s < 0:
-            raise ValueError(f"omega_rad_s must be >= 0 (flip the axis instead), got {self.omega_rad_s}")
         if self.radius <= 0:
             raise ValueError(f"ball radius must be positive, got {self.radius}")
+        t0, c, v, ax, om, rot = [0.0], [self.center], [self.velocity], [self.axis], [float(self.omega_rad_s)], [
+            np.asarray(self.R0, np.float64)]
+        for t_h, v_h, ax_h, om_h in sorted(self.hits, key=lambda h: h[0]):
+            if t_h <= t0[-1]:
+                raise ValueError(f"hit times must be increasing and > 0, got {t_h}")
+            dt = t_h - t0[-1]
+            c.append(c[-1] + v[-1] * dt + 0.5 * self.accel * dt * dt)
+            rot.append(axis_angle_matrices(ax[-1], [om[-1] * dt])[0] @ rot[-1])
+            t0.append(float(t_h))
+            v.append(np.asarray(v_h, np.float64).reshape(3))
+            ax.append(unit(ax_h))
+            om.append(float(om_h))
+        if min(om) < 0:
+            raise ValueError(f"omega_rad_s must be >= 0 (flip the axis instead), got {min(om)}")
+        self._t0, self._c, self._v = np.array(t0), np.array(c), np.array(v)
+        self._axis, self._omega, self._R = np.array(ax), np.array(om), np.array(rot)
 
     @property
     def translating(self) -> bool:
-        return bool(np.any(self.velocity) or np.any(self.accel))
+        return bool(np.any(self._v) or np.any(self.accel))
+
+    def segments(self) -> list[tuple[float, np.ndarray, float]]:
+        """``(t_start_s, axis (3,), omega_rad_s)`` of every segment, in time order."""
+        return [(float(t), a.copy(), float(w)) for t, a, w in zip(self._t0, self._axis, self._omega)]
+
+    def segment_at(self, t_s) -> np.ndarray:
+        """Segment number (K,) at times ``t_s`` (0 before the first hit)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        return np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self._t0) - 1)
+
+    def _local(self, t_s):
+        t = np.atleast_1d(np.asarray(t_s, np.float64))
+        k = self.segment_at(t)
+        return k, t - self._t0[k]
 
     def center_at(self, t_s) -> np.ndarray:
         """Centre (K, 3) at times ``t_s`` (K,)."""
-        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
-        return self.center + self.velocity * t + 0.5 * self.accel * t * t
+        k, dt = self._local(t_s)
+        dt = dt[:, None]
+        return self._c[k] + self._v[k] * dt + 0.5 * self.accel * dt * dt
 
     def velocity_at(self, t_s) -> np.ndarray:
         """Centre velocity (K, 3) at times ``t_s`` (K,)."""
-        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
-        return self.velocity + self.accel * t
+        k, dt = self._local(t_s)
+        return self._v[k] + self.accel * dt[:, None]
+
+    def spin_at(self, t_s) -> tuple[np.ndarray, np.ndarray]:
+        """Spin axis (K, 3) and angular speed (K,) rad/s at times ``t_s``."""
+        k = self.segment_at(t_s)
+        return self._axis[k], self._omega[k]
 
     def orientation(self, t_s) -> np.ndarray:
         """``R(t)`` (K, 3, 3)."""
-        t = np.atleast_1d(np.asarray(t_s, np.float64))
-        return axis_angle_matrices(self.axis, self.omega_rad_s * t) @ self.R0
+        k, dt = self._local(t_s)
+        if len(self._t0) == 1:
+            return axis_angle_matrices(self.axis, self.omega_rad_s * dt) @ self.R0
+        return axis_angle_matrices(self._axis[k], self._omega[k] * dt) @ self._R[k]
 
     def circle(self, cam: Camera, t_s) -> np.ndarray:
         """Image circle ``(cx, cy, r)`` in pixels at times ``t_s``, shape (K, 3)."""
@@ -127,15 +168,20 @@ class Ball:
             r = np.full(len(c), float(self.radius))
         return np.column_stack([uv, r])
 
-    def image_velocity(self, cam: Camera, t_s, dt_s: float = 1e-5) -> np.ndarray:
+    def image_velocity(self, cam: Camera, t_s) -> np.ndarray:
         """Centre velocity in the image (K, 2), px/s."""
-        t = np.atleast_1d(np.asarray(t_s, np.float64))
-        return (cam.project(self.center_at(t + dt_s)) - cam.project(self.center_at(t - dt_s))) / (2 * dt_s)
+        v = self.velocity_at(t_s)
+        if not cam.pinhole:
+            return v[:, :2].copy()
+        c = self.center_at(t_s)
+        z = c[:, 2:3]
+        return cam.focal_px * (v[:, :2] * z - c[:, :2] * v[:, 2:3]) / (z * z)
 
     def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
         """Upper bound of any visible point's image speed at ``t_s`` (rim + translation)."""
         cx, cy, r = self.circle(cam, [t_s])[0]
-        return float(np.hypot(*self.image_velocity(cam, [t_s])[0]) + self.omega_rad_s * r * 1.05)
+        omega = self.spin_at([t_s])[1][0]
+        return float(np.hypot(*self.image_velocity(cam, [t_s])[0]) + omega * r * 1.05)
 
     def footprint(self, cam: Camera, t0_s: float, t1_s: float):
         """Swept capsule over ``[t0_s, t1_s]``: (start uv, end uv, radius px)."""
@@ -224,15 +270,18 @@ class Player:
         return body, head
 
     def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        """Fastest image motion (px/s): walking plus bobbing."""
         return abs(self.vx) + self.bob_px * np.pi * self.step_hz
 
     def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) over ``[t0_s, t1_s]``."""
         t = np.array([t0_s, t1_s])
         x = self.x0 + self.vx * t
         h = self.height_px
         return (x.min() - 0.16 * h - 2, self.y0 - h - self.bob_px - 2, x.max() + 0.16 * h + 2, self.y0 + 2)
 
     def render(self, cam: Camera, u, v, t_s, light, ambient):
+        """Brightness and anti-aliased coverage (K, N) at pixels ``(u, v)``, times ``t_s`` (K,)."""
         t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
         body, head = self._parts(t)
         covs, vals = [], []
@@ -243,7 +292,8 @@ class Player:
             cov = np.clip((1.0 - rho) * min(a, b) + 0.5, 0.0, 1.0)
             if kind == "body":
                 yrel = (v[None, :] - (cy - b)) / (2 * b)  # 0 at shoulders, 1 at feet
-                stripes = 0.15 * (np.sin(2 * np.pi * yrel * 6.0) > 0)
+                # six shirt stripes with ~1 px soft edges (no aliasing when the player bobs)
+                stripes = 0.15 * np.clip(0.5 + np.sin(2 * np.pi * 6.0 * yrel) * (2 * b) / (2 * np.pi * 6.0), 0, 1)
                 # shirt above 55 % of the height, shorts below, edge softened over ~1 px
                 m = np.clip((yrel - 0.55) * 2 * b + 0.5, 0, 1)
                 val = (1 - m) * (self.shirt - stripes) + m * self.shorts
