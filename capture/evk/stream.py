@@ -155,6 +155,7 @@ class Reader(threading.Thread):
         self.error: EvkError | None = None
         self.end_of_stream = False
         self.gap_s = 0.0
+        self.max_gap_s = 0.0
         self._free: deque = deque()
         self._n_buffers = 0
         self._max_buffers = max(2, self.queue.capacity_bytes // self.read_bytes + 1)
@@ -202,6 +203,7 @@ class Reader(threading.Thread):
                 t_call = clock()
                 if t_done is not None:
                     self.gap_s += t_call - t_done
+                    self.max_gap_s = max(self.max_gap_s, t_call - t_done)
                 try:
                     n = read(ep, target, timeout)
                 except usb.core.USBTimeoutError:
