@@ -197,8 +197,10 @@ class Reader(threading.Thread):
         scratch = array.array("B", bytes(size))  # used only when every pooled buffer is queued
         t_done = None
         try:
-            buf = self._buffer()
+            buf = None
             while not self._stop_event.is_set():
+                if buf is None:
+                    buf = self._buffer()
                 target = buf if buf is not None else scratch
                 t_call = clock()
                 if t_done is not None:
@@ -219,8 +221,6 @@ class Reader(threading.Thread):
                 t_done = clock()
                 self.n_reads += 1
                 if not n:
-                    if buf is None:
-                        buf = self._buffer()
                     continue
                 self.bytes_read += n
                 if n == size:
@@ -233,13 +233,11 @@ class Reader(threading.Thread):
                     chunk = None
                 if chunk is not None and queue.put(chunk):
                     if chunk.buffer is buf:
-                        buf = self._buffer()
+                        buf = None  # now owned by the queue; take another from the pool
                 else:  # queue full: the data is lost, counted and marked
                     self.dropped_bytes += n
                     self.n_overflows += 1
                     queue.put_gap(n)
-                    if buf is None:
-                        buf = self._buffer()
         except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
             self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
         finally:
