@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, first_of_type, in_bounds,
-                                  make_events, triggers_from, xy_view)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, first_of_type,
+                                  in_bounds, make_events, merge_order, time_high_words, triggers_from, xy_view)
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
@@ -333,8 +333,6 @@ def encode(events: np.ndarray, triggers: np.ndarray | None = None, *, width: int
     ndarray of uint16
         The words, to be written little-endian after a header.
     """
-    from capture.raw._common import check_events, merge_order, time_high_words
-
     events, triggers = check_events(events, triggers, width, height, max_channel=15)
     n_ev = len(events)
     t = events["t"]

@@ -24,8 +24,8 @@ WORD_BYTES = {"EVT2": 4, "EVT21": 8, "EVT3": 2}
 WRAP_US = {"EVT2": 1 << 34, "EVT21": 1 << 34, "EVT3": 1 << 24}
 """Period of the format's wrapping time base in µs."""
 
-DEFAULT_CHUNK_BYTES = 1 << 24
-"""Bytes read per batch when streaming a file (16 MiB: ~8M EVT3 words)."""
+DEFAULT_CHUNK_BYTES = 1 << 20
+"""Bytes read per batch when streaming a file (1 MiB: temporaries stay small and reusable)."""
 
 
 class StreamDecoder:
