@@ -3,11 +3,11 @@
 Each batch allocates NumPy temporaries of 0.1–30 MB. With glibc's defaults those are
 returned to the OS when freed and page-faulted back on the next batch; on a VM a fault
 costs about 3 µs per 4 KiB page, which made decoding 2–3x slower than the arithmetic.
-:func:`keep_freed_memory` sets the thresholds so that blocks up to 4 MiB (a batch's
-temporaries) come from the heap, which keeps up to 256 MiB free for reuse, while larger
-blocks (the decoded output a long file accumulates) are mapped directly, where
-transparent huge pages make first touch cheap. Called once when :mod:`capture.raw` is
-imported.
+:func:`keep_freed_memory` raises the thresholds so that blocks up to 32 MiB come from
+the heap and up to 256 MiB of free heap is kept for reuse (larger blocks are still
+mapped directly; transparent huge pages make those cheap). Measured on the shared
+recordings and a 4M-event file: this minimises page faults per decoded file. Called
+once when :mod:`capture.raw` is imported.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import sys
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
-MMAP_THRESHOLD_BYTES = 4 << 20
+MMAP_THRESHOLD_BYTES = 32 << 20
 TRIM_THRESHOLD_BYTES = 256 << 20
 
 

@@ -51,18 +51,39 @@ def _running(mask: np.ndarray) -> np.ndarray:
     return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
 
 
-def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> np.ndarray:
-    """Time (µs) in force after each state word, from its TIME_LOW / TIME_HIGH words.
+def _lookup(table: np.ndarray, run: np.ndarray, n_queries: int):
+    """``f(k)`` = value of ``table`` in force after state word ``k`` (``run`` indexes ``table``).
+
+    Materialises the per-state-word values when there are more queries than state words,
+    otherwise composes the two lookups per query.
+    """
+    if n_queries >= len(run):
+        per_state = table.take(run)
+        return per_state.take
+    return lambda k: table.take(run.take(k))
+
+
+def _running0(mask: np.ndarray) -> np.ndarray:
+    """Running count of ``mask`` with a leading 0: index into a table whose entry 0 is the prior state."""
+    out = np.empty(len(mask) + 1, np.int32 if len(mask) < (1 << 31) else np.int64)
+    out[0] = 0
+    np.cumsum(mask, out=out[1:])
+    return out
+
+
+def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> tuple[np.ndarray, np.ndarray]:
+    """Times (µs) set by the TIME_LOW / TIME_HIGH words among the state words.
 
     ``styp`` / ``spay`` are the types / payloads of the batch's state words (positions
-    ``spos``). Returns int64 of ``len(styp) + 1`` with the time before the batch first.
-    Updates the time part of ``st`` and its statistics.
+    ``spos``). Returns ``(t_time, run)``: ``t_time[0]`` is the time before the batch and
+    ``t_time[j]`` the time after the j-th time word; ``run[k]`` is the number of time words
+    among the first ``k`` state words. Updates the time part of ``st`` and its statistics.
     """
     is_th = styp == _TIME_HIGH
     is_time = is_th | (styp == _TIME_LOW)
     tsel = np.flatnonzero(is_time)
     if len(tsel) == 0:
-        return np.full(len(styp) + 1, st.t_us, np.int64)
+        return np.array([st.t_us], np.int64), np.zeros(len(styp) + 1, np.int32)
     tth = is_th.take(tsel)
     tpay = spay.take(tsel)
     thk = np.flatnonzero(tth)                   # TIME_HIGH words among the time words
@@ -93,10 +114,7 @@ def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> np.ndarray:
     np.left_shift(high_table.take(_running(tth)), 12, out=t_time[1:])
     t_time[1:] |= low_table.take(_running(setter))
     st.t_us, st.tl = int(t_time[-1]), int(t_time[-1] & 0xFFF)
-    t_state = np.empty(len(styp) + 1, np.int64)
-    t_state[0] = t_time[0]
-    t_state[1:] = t_time.take(_running(is_time))
-    return t_state
+    return t_time, _running0(is_time)
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -160,13 +178,13 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     spos = np.flatnonzero(is_state)
     styp = typ.take(spos)
     spay = pay.take(spos)
-    t_state = _time_after(styp, spay, st, w0, spos)
+    t_time, t_run = _time_after(styp, spay, st, w0, spos)
     s_is_y = styp == _ADDR_Y
     y_sel = np.flatnonzero(s_is_y)
     y_table = np.empty(len(y_sel) + 1, np.uint16)
     y_table[0] = st.y
     y_table[1:] = spay.take(y_sel)
-    y_state = y_table.take(np.concatenate(([0], _running(s_is_y))))
+    y_run = _running0(s_is_y)
     st.y = int(y_table[-1])
 
     only_x_and_state = n_tr + n_rest == 0
@@ -183,7 +201,7 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     if n_tr:
         tr = np.flatnonzero(is_tr)
         tp = pay.take(tr)
-        triggers = triggers_from(t_state.take(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
+        triggers = triggers_from(t_time.take(t_run.take(cs.take(tr))), (tp >> 8) & 0xF, tp & 1)
         st.stats["triggers"] += len(triggers)
 
     vsel = np.flatnonzero((styp >> 1) == (_VECT_12 >> 1)) if n_vec else None
@@ -194,15 +212,18 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         if len(vb):
             last = int(spay[vb[-1]])
             st.base_x, st.base_pol = last & 0x7FF, last >> 11
-    if n_x == 0 and (n_vec == 0 or int(v_count.sum()) == 0):
+    n_events = n_x + (int(v_count.sum()) if n_vec else 0)
+    if n_events == 0:
         return EMPTY_EVENTS, triggers
+    t_at = _lookup(t_time, t_run, n_events)
+    y_at = _lookup(y_table, y_run, n_events)
 
     xpos = np.flatnonzero(is_x)
     kx = state_index(xpos)
     px = pay.take(xpos)
     if n_vec == 0:
-        t = t_state.take(kx)
-        y = y_state.take(kx)
+        t = t_at(kx)
+        y = y_at(kx)
         x = px & 0x7FF
         p = px >> 11
         def locate(i):
@@ -222,8 +243,8 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         k = np.empty(total, kx.dtype)
         k[at_x] = kx
         k[at_v] = vsel.take(row) + 1
-        t = t_state.take(k)
-        y = y_state.take(k)
+        t = t_at(k)
+        y = y_at(k)
         x = np.empty(total, np.uint16)
         x[at_x] = px & 0x7FF
         rank = np.arange(len(row)) - v_first.take(row)
