@@ -4,14 +4,13 @@ import io
 import warnings
 from functools import lru_cache
 
-import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import capture.raw as raw
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 from tests.conftest import SHARED
-from tests.test_raw_files import FILES
+from tests.raw_cases import FILES
 
 DECODERS = [("EVT3", "little"), ("EVT2", "little"), ("EVT21", "little"), ("EVT21", "legacy")]
 

@@ -8,7 +8,7 @@ import pytest
 
 import capture.raw as raw
 from capture.events import make_events, make_triggers
-from tests.test_raw_files import FILES
+from tests.raw_cases import FILES
 
 
 def _concat(batches):

@@ -8,13 +8,13 @@ incomplete word and the full time / address state from one call to the next.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from capture.raw import evt2, evt3
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
+from capture.raw import evt2, evt3
 from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, concat
 from capture.raw.errors import RawFormatError
 from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
