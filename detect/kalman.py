@@ -86,7 +86,7 @@ class CircleKalman:
         f, q = self._transition((t_us - self.t_us) * 1e-6)
         return f @ self.x, f @ self.P @ f.T + q
 
-    def innovation(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> float:
+    def innovation(self, t_us: int, z, sigma_px: float) -> float:
         """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""
         x, p = self.predict(t_us)
         nu = np.asarray(z[:2], float) - x[:2]

@@ -237,7 +237,7 @@ class BallTracker:
                 self._end_flight()
             return
         sigma_r = 1.5 * fit.sigma_px
-        d2 = kf.innovation(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+        d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
         dist = np.hypot(fit.cx - cx, fit.cy - cy)
         if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
             kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
@@ -337,7 +337,7 @@ class BallTracker:
             return
         c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
         sig_r = 1.5 * self.frame_sigma_px
-        d2 = kf.innovation(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+        d2 = kf.innovation(t_us, (c.cx, c.cy), self.frame_sigma_px)
         if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
             kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
             self._scores.append(c.score)

@@ -208,6 +208,10 @@ def test_bad_arguments_raise():
         BallTracker(W, H, slice_us=3000, block_us=20000)
     with pytest.raises(TypeError, match="EVENT_DTYPE"):
         BallTracker(W, H).update(np.zeros(3))
+    with pytest.raises(ValueError, match="frame_times_us"):
+        track_ball(empty_events(), width=W, height=H, frames=[np.zeros((H, W), np.uint8)])
+    with pytest.raises(ValueError, match="model"):
+        BallTracker(W, H, model="cj")
 
 
 def _frames(n, c0, v_px_frame, r, seed=12):
