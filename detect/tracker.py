@@ -77,7 +77,7 @@ class BallTracker:
     """
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
-                 r_range=(5.0, 100.0), min_score: float = 0.35, confirm_slices: int = 3, max_misses: int = 3,
+                 r_range=(5.0, 100.0), min_score: float = 0.3, confirm_slices: int = 3, max_misses: int = 3,
                  model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 2.0e5, gate_chi2: float = 25.0,
                  cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True):
         if width <= 0 or height <= 0:
@@ -219,7 +219,7 @@ class BallTracker:
             self._end_flight()
             return
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
-        reach = 1.4 * r + 4.0 + 3.0 * sig
+        reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
         # a box around the swept circle first (cheap on all events), then the moving circle
         hx = reach + abs(vx) * self.slice_us * 0.5e-6
         hy = reach + abs(vy) * self.slice_us * 0.5e-6
