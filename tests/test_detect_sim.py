@@ -157,3 +157,21 @@ def test_frames_detector_and_fusion_on_simulated_frames():
     assert np.isin(rec.frame_times_us, tr.t_us).sum() >= 3  # frame detections were fused
     cx, cy, *_ = _flight_truth(rec, tr.t_us)
     assert np.median(np.hypot(tr.cx - cx, tr.cy - cy)) < 0.5
+
+
+def test_track_feeds_spin_windows(spinning_flight):
+    from detect import spin_windows
+
+    ev, truth = spinning_flight
+    tr = track_ball(ev, width=W, height=H)
+    wins = list(spin_windows(ev, tr, window_us=4000, min_events=500))
+    assert len(wins) >= 0.8 * (tr.t_us[-1] - tr.t_us[0]) / 4000
+    for w in wins:
+        ex, ey = _truth_xy(truth, w.t_start_us)
+        assert np.hypot(w.center[0] - ex, w.center[1] - ey) < 1.0
+        assert np.hypot(*(np.asarray(w.velocity_px_s) - truth["velocity_px_s"])) < 0.03 * np.hypot(
+            *truth["velocity_px_s"])
+        # the window keeps the ball's events and little else
+        d = np.hypot(w.events["x"] - (ex + truth["velocity_px_s"][0] * (w.events["t"] - w.t_start_us) * 1e-6),
+                     w.events["y"] - (ey + truth["velocity_px_s"][1] * (w.events["t"] - w.t_start_us) * 1e-6))
+        assert np.mean(d <= truth["radius_px"] + 1.5) > 0.99
