@@ -78,7 +78,7 @@ class BallTracker:
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
                  r_range=(5.0, 100.0), min_score: float = 0.3, confirm_slices: int = 3, max_misses: int = 3,
-                 model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 2.0e5, gate_chi2: float = 25.0,
+                 model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 3.0e4, gate_chi2: float = 25.0,
                  cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
