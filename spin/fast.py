@@ -26,8 +26,7 @@ from spin.search import by_time_to_reference, coarse_search, distinct_candidates
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
 # uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (6.0, 64.0, 1.0, 3000, 8),
-          (np.inf, 100.0, 0.55, 10000, 8))
+LEVELS = ((2.0, 12.0, 1.2, 500, 8), (6.0, 40.0, 1.0, 2500, 6), (np.inf, 100.0, 0.55, 8000, 6))
 
 
 @dataclass(frozen=True)
@@ -66,8 +65,8 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  omega_ratio: float = 1.4, n_candidates: int = 2, n_directions: int = 60,
-                  coarse_events: int = 250, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  omega_ratio: float = 1.6, n_candidates: int = 2, n_directions: int = 40,
+                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
