@@ -9,9 +9,9 @@
    rotation to separate spin from translation.
 3. Confidence: the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) on the second-last level's events, the agreement of the IWEs of two halves of
-   the events (structure rather than over-fitted noise), and the motion the window
-   covers (pixels travelled at the ball's equator).
+   mirrored axis) on the second-last level's events, the agreement of the IWEs of
+   two halves of the events (structure rather than over-fitted noise), and the
+   motion the window covers (pixels travelled at the ball's equator).
 """
 
 from __future__ import annotations
@@ -66,7 +66,8 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 2, n_directions: int = 40,
-                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
+                  refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters

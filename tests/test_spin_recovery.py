@@ -33,7 +33,7 @@ def test_fast_recovers_known_spin(ball):
     assert axis_deg < 2.0 and omega_rel < 0.03
     assert est.omega_rad_s >= 0 and est.rps == pytest.approx(est.omega_rad_s / (2 * np.pi))
     assert np.linalg.norm(est.axis) == pytest.approx(1.0)
-    assert est.confidence > 0.5 and est.method == "fast"
+    assert est.confidence > 0.5 and est.converged and est.method == "fast"
     assert est.t_start_us >= events["t"][0] and est.t_end_us <= events["t"][-1] + 1
     assert 0 < est.n_events <= len(events)
 
