@@ -131,10 +131,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
                        * np.clip(coverage_px / 3.0, 0, 1))
     if not velocity_known:
-        # without a velocity prior, rotation about an in-image axis and translation trade off
-        # unless the window covers a good part of a revolution
+        # without a tracker velocity the centre motion is itself estimated (and errors in it bend
+        # the axis): at most 0.5, less for in-image axes on windows short of a quarter turn, where
+        # rotation and translation trade off
         in_plane = float(np.linalg.norm(w[:2]) / max(np.linalg.norm(w), 1e-30))
         rotation_rad = float(np.linalg.norm(w)) * window_s
-        confidence *= 1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2)))
+        confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
                       agreement, margin, coverage_px)
