@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, _blur, iwe, lift_moving
-from spin.warp import _coefficients
+from spin.objective import BallEvents, IweGeometry, blur, iwe, lift_moving
+from spin.warp import rotation_coefficients
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -56,7 +56,7 @@ def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: 
     n = (w / np.maximum(omega, 1e-30)[:, None]).astype(dt)
     nx, ny, nz = n[:, 0][None, :], n[:, 1][None, :], n[:, 2][None, :]
     phi = ev.tau_s.astype(dt)[:, None] * omega.astype(dt)[None, :]
-    a, b = _coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
+    a, b = rotation_coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
     big_a = a * phi
     big_b = b * phi * phi
     ndp = px * nx + py * ny + pz * nz
@@ -69,7 +69,7 @@ def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: 
     idx = (v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32) + (np.arange(c) * (h * width))[None, :]
     wgt = np.broadcast_to(ev.weight.astype(np.float32)[:, None], idx.shape)
     img = np.bincount(idx.ravel(), wgt.ravel(), c * h * width).astype(np.float32)
-    img = _blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
+    img = blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
     return img.var(axis=1, dtype=np.float64)
 
 
