@@ -4,12 +4,11 @@ Usage::
 
     PYTHONPATH=. python bench/detect_bench.py [--quick] [--seed N]
 
-Each case is a scene rendered by the simulator (``sim.scene`` + ``sim.esim``):
-a textured court background, a volleyball of radius ``r`` px flying across the
-sensor at an image-equivalent speed (m/s scaled by ``r / 0.105 m``) under image
-gravity, with or without spin, a player-like distractor walking through, noise
-events and hot pixels; optionally camera frames (120 fps, 1 ms exposure, rendered
-by the same scene) fused with the events. ``detect.track_ball`` tracks it and
+Each case is a ``sim.flight``: a textured court background, a volleyball of
+radius ``r`` px flying into the sensor at an image-equivalent speed (m/s scaled
+by ``r / 0.105 m``) under image gravity, with or without spin, a player-like
+distractor walking through, noise events and hot pixels; half of the cases also
+have 120 fps frames (exposure half the period) fused with the events. ``detect.track_ball`` tracks it and
 the track is compared with the ball's true circle every 2 ms while the ball
 is fully on the sensor.
 
@@ -29,66 +28,53 @@ import time
 import cv2
 import numpy as np
 
+import sim
 from detect import track_ball
-from sim.balls import make_ball
-from sim.esim import SensorState, merge, noise_events, simulate
-from sim.rotation import random_rotation
-from sim.scene import Camera, Player, Scene, court_background
+from sim.esim import noise_events
 
 VOLLEYBALL_RADIUS_M = 0.105
-GRAVITY_M_S2 = 9.81
 
 
-def make_case(width, height, radius_px, speed_mps, rps, seed, duration_s, frames_fps=0.0):
-    """Simulated events (+ frames) and the ball object for one case."""
+def make_case(width, height, radius_px, speed_mps, rps, seed, duration_s, frames_fps=None):
+    """One simulated flight (``sim.flight``) at an image-equivalent speed of ``speed_mps``."""
     rng = np.random.default_rng(seed)
-    cam = Camera(width, height)
-    px_per_m = radius_px / VOLLEYBALL_RADIUS_M
-    v = speed_mps * px_per_m
+    v = speed_mps * radius_px / VOLLEYBALL_RADIUS_M
     ang = np.deg2rad(rng.uniform(-20, 20))
     vel = (v * np.cos(ang), -v * np.sin(ang))
-    g = GRAVITY_M_S2 * px_per_m
-    dur = min(duration_s, (width - 2 * radius_px - 10) / max(vel[0], 1.0))
+    # enter through the left edge when the ball gets fully in early enough, else start inside
+    x0 = -0.5 * radius_px if 2 * radius_px / vel[0] < duration_s / 3 else radius_px + 4.0
+    dur = min(duration_s, (width - x0 - radius_px - 10) / vel[0])
     y0 = height / 2 - vel[1] * dur / 2
-    ball = make_ball(cam, texture="volleyball", radius_px=radius_px, center_px=(radius_px + 4.0, y0),
-                     velocity_px_s=vel, accel_px_s2=(0.0, g), axis=rng.normal(size=3),
-                     omega_rad_s=2 * np.pi * rps, R0=random_rotation(rng))
-    player = Player(x0=width * 0.6, y0=height - 10.0, vx=-300.0, height_px=0.8 * height)
-    scene = Scene(cam, [player, ball], background=court_background(width, height, rng))
-    ev = simulate(scene, SensorState.new(width, height, rng), 0.0, dur)
-    noise, _ = noise_events(width, height, 0, int(dur * 1e6), rng, rate_hz_per_px=1.0, hot_pixels=30)
-    ev = merge(ev, noise)
-    frames, t_frames = [], []
-    if frames_fps:
-        v_pix, u_pix = np.divmod(np.arange(width * height), width)
-        for tf in np.arange(0.5 / frames_fps, dur, 1.0 / frames_fps):
-            ts = tf + np.linspace(-0.5e-3, 0.5e-3, 5)
-            img = scene.render(u_pix.astype(float), v_pix.astype(float), ts, bg=scene.sensor_background()).mean(0)
-            frames.append(np.clip(img.reshape(height, width) * 255, 0, 255).astype(np.uint8))
-            t_frames.append(int(round(tf * 1e6)))
-    return ev, cam, ball, dur, frames, t_frames
+    rec = sim.flight(radius_px=radius_px, width=width, height=height, duration_s=dur, start_px=(x0, y0),
+                     velocity_px_s=vel, rps=rps, axis=tuple(rng.normal(size=3)), noise_rate_hz=1.0,
+                     hot_pixels=30, distractors=("player",), fps=frames_fps, seed=seed)
+    return rec, dur
 
 
-def evaluate(tr, cam, ball, span_us, width, height):
-    """Errors of track ``tr`` against the ball's true circle."""
-    r_true = ball.circle(cam, [0.0])[0, 2]
-    tol = max(2.0, 0.25 * r_true)
-    samples = np.arange(span_us[0] + 1000, span_us[1] - 1000, 2000)
-    c = ball.circle(cam, samples * 1e-6)
-    inside = (c[:, 0] - c[:, 2] >= 0) & (c[:, 1] - c[:, 2] >= 0) & (c[:, 0] + c[:, 2] <= width - 1) & \
-             (c[:, 1] + c[:, 2] <= height - 1)
+def evaluate(tr, rec):
+    """Errors of track ``tr`` against the recording's true circle."""
+    truth = rec.truth_track(visible_only=False)
+
+    def at(t_us):
+        return [np.interp(t_us, truth.t_us, getattr(truth, c)) for c in ("cx", "cy", "r", "vx", "vy")]
+
+    tol = max(2.0, 0.25 * rec.truth["radius_px"])
+    samples = np.arange(int(rec.events["t"][0]) + 1000, int(rec.events["t"][-1]) - 1000, 2000)
+    cx, cy, r, _, _ = at(samples)
+    inside = (cx - r >= 0) & (cy - r >= 0) & (cx + r <= rec.width - 1) & (cy + r <= rec.height - 1)
     samples = samples[inside]
-    out = dict(err=np.zeros(0), rerr=np.zeros(0), verr=np.zeros(0), vabs=np.zeros(0), hit=np.zeros(len(samples), bool), false=0)
+    out = dict(err=np.zeros(0), rerr=np.zeros(0), verr=np.zeros(0), vabs=np.zeros(0),
+               hit=np.zeros(len(samples), bool), false=0)
+    tr = tr.select((tr.t_us >= truth.t_us[0]) & (tr.t_us <= truth.t_us[-1]))  # truth is sampled up to here
     if len(tr) == 0:
         return out
-    c = ball.circle(cam, tr.t_us * 1e-6)
-    v = ball.image_velocity(cam, tr.t_us * 1e-6)
-    err = np.hypot(tr.cx - c[:, 0], tr.cy - c[:, 1])
+    cx, cy, r, vx, vy = at(tr.t_us)
+    err = np.hypot(tr.cx - cx, tr.cy - cy)
     good = err <= tol
     out["false"] = int((~good).sum())
-    out["err"], out["rerr"] = err[good], np.abs(tr.r - c[:, 2])[good]
-    out["verr"] = (np.hypot(tr.vx - v[:, 0], tr.vy - v[:, 1]) / np.hypot(v[:, 0], v[:, 1]))[good]
-    out["vabs"] = np.hypot(tr.vx - v[:, 0], tr.vy - v[:, 1])[good]
+    out["err"], out["rerr"] = err[good], np.abs(tr.r - r)[good]
+    dv = np.hypot(tr.vx - vx, tr.vy - vy)
+    out["verr"], out["vabs"] = (dv / np.hypot(vx, vy))[good], dv[good]
     good_t = tr.t_us[good]
     if len(good_t) and len(samples):
         j = np.searchsorted(good_t, samples)
@@ -119,14 +105,15 @@ def main(argv=None):
                 for rps in spins:
                     seed += 1
                     with_frames = bool(seed % 2)  # half of the cases also get frames
-                    ev, cam, ball, dur, frames, t_frames = make_case(w, h, r, s, rps, seed, duration_s,
-                                                                     frames_fps=120.0 if with_frames else 0.0)
+                    rec, dur = make_case(w, h, r, s, rps, seed, duration_s,
+                                         frames_fps=120.0 if with_frames else None)
                     t0 = time.process_time()
-                    tr = track_ball(ev, width=w, height=h, frames=frames or None,
-                                    frame_times_us=t_frames or None)
+                    tr = track_ball(rec.events, width=w, height=h, frames=rec.frames,
+                                    frame_times_us=rec.frame_times_us)
                     t_track = time.process_time() - t0
-                    res = evaluate(tr, cam, ball, (int(ev["t"][0]), int(ev["t"][-1])), w, h)
-                    res.update(n_events=len(ev), span_s=dur, t_track=t_track, n_flights=len(tr.flight_ids()))
+                    res = evaluate(tr, rec)
+                    res.update(n_events=len(rec.events), span_s=dur, t_track=t_track,
+                               n_flights=len(tr.flight_ids()))
                     rows[with_frames].append(res)
                     rate = res["n_events"] / t_track
                     med = lambda a, f=np.median: f(a) if len(a) else np.nan  # noqa: E731

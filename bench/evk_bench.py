@@ -161,10 +161,12 @@ def main() -> None:
         for speed in (1.0, 2.0, 4.0):
             with evk.open(backend=FakeEVK(src, packet_bytes=131072, pace="recorded", speed=speed)) as cam:
                 st = evk.record(cam, tmp / "rec_paced.raw")  # default 256 MiB queue
-            print(f"  fed at {args.rate_mev_s * speed:4.0f} Mev/s ({st.payload_bytes / st.stream_s / 1e6:4.0f} MB/s "
-                  f"achieved): dropped {st.dropped_bytes} B, time jumps {st.time_jumps}, queue peak "
+            secs = st.stream_s - 0.1  # minus the final 100 ms end-of-stream timeout
+            print(f"  fed at {args.rate_mev_s * speed:4.0f} Mev/s (achieved {mev / secs:4.0f} Mev/s, "
+                  f"{st.payload_bytes / secs / 1e6:4.0f} MB/s): dropped {st.dropped_bytes} B, time jumps {st.time_jumps}, queue peak "
                   f"{st.queue_peak_bytes / 1e6:.1f} MB, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev, "
-                  f"gap between reads {st.read_gap_us:.1f} us, full reads {st.n_full_reads}/{st.n_reads}")
+                  f"gap between reads {st.read_gap_us:.0f} us (max {st.max_read_gap_us / 1e3:.1f} ms), "
+                  f"full reads {st.n_full_reads}/{st.n_reads}")
         (tmp / "rec_paced.raw").unlink()
 
         print(f"\n3. raw + live decode into the session store, fed in real time ({args.rate_mev_s:.0f} Mev/s)")
@@ -177,7 +179,8 @@ def main() -> None:
               f"decoding caught up after {st.duration_s:.2f} s "
               f"-> decode+store {mev / st.duration_s:.1f} Mev/s, CPU {st.cpu_s / mev * 1e3:.1f} ms/Mev; "
               f"queue peak {st.queue_peak_bytes / 1e6:.0f} MB; dropped {st.dropped_bytes} B; "
-              f"events {st.n_events / 1e6:.1f} M")
+              f"events {st.n_events / 1e6:.1f} M; gap between reads {st.read_gap_us:.0f} us "
+              f"(max {st.max_read_gap_us / 1e3:.1f} ms)")
         print("\n4. catch-up: decode the recorded RAW (alone, then into a session) afterwards")
         t, c = time.perf_counter(), time.process_time()
         n = sum(len(events) for events, _ in raw.iter_chunks(tmp / "rec.raw", chunk_bytes=8 << 20))

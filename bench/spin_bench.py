@@ -8,7 +8,7 @@ sequences: ``--paper-seqs``), and the image baseline (two-frame registration aft
 Tamaki et al.) at 60/120/240/480 fps on sharp rendered frames of the same ball.
 
 Prints per row and method: median/mean axis error (deg), median/mean omega error
-(%), success rate (axis < 5 deg and omega < 5 %), time per estimate, and the
+(%), success rate (axis < 5 deg and omega < 5 %), mean and median time per estimate, and the
 speed ratio paper/fast measured on the same sequences in this run.
 
     python bench/spin_bench.py --quick          # a few minutes
@@ -72,7 +72,7 @@ def summarise(rows):
     ok = (a < 5.0) & (o < 5.0)
     return {"n": len(rows), "axis_median_deg": float(np.median(a)), "axis_mean_deg": float(np.mean(a)),
             "omega_median_pct": float(np.median(o)), "omega_mean_pct": float(np.mean(o)),
-            "success_pct": float(100.0 * ok.mean()), "time_s": float(np.mean(t))}
+            "success_pct": float(100.0 * ok.mean()), "time_s": float(np.mean(t)), "time_median_s": float(np.median(t))}
 
 
 def main(argv=None):
@@ -103,7 +103,7 @@ def main(argv=None):
     results = []
     ratios = []
     print(f"{'row':28s} {'method':12s} {'n':>3s} {'axis med':>8s} {'axis mean':>9s} {'om% med':>8s} "
-          f"{'om% mean':>8s} {'succ%':>6s} {'time/est':>9s}")
+          f"{'om% mean':>8s} {'succ%':>6s} {'time/est':>9s} {'median':>8s}")
     for ri, (texture, rps, radius, n_events) in enumerate(rows):
         name = f"{texture} {rps:g}rps r{radius:g} {n_events // 1000}k"
         per = {"fast": [], "paper": []}
@@ -142,7 +142,7 @@ def main(argv=None):
             results.append({"row": name, "method": method, **summ})
             print(f"{name:28s} {method:12s} {summ['n']:3d} {summ['axis_median_deg']:8.2f} {summ['axis_mean_deg']:9.2f} "
                   f"{summ['omega_median_pct']:8.2f} {summ['omega_mean_pct']:8.2f} {summ['success_pct']:6.1f} "
-                  f"{summ['time_s'] * 1e3:7.0f}ms", flush=True)
+                  f"{summ['time_s'] * 1e3:7.0f}ms {summ['time_median_s'] * 1e3:6.0f}ms", flush=True)
         if same_paper:
             ratio = float(np.sum(same_paper) / np.sum(same_fast))
             ratios.append(ratio)

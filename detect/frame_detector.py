@@ -93,7 +93,7 @@ class FrameDetector:
         The background model runs on the frame resized by this factor (speed).
     """
 
-    def __init__(self, r_range=(5.0, 100.0), *, blur_sigma_px: float = 1.5, circularity: float = 0.75,
+    def __init__(self, r_range=(5.0, 100.0), *, blur_sigma_px: float = 1.0, circularity: float = 0.75,
                  canny_high: float = 120.0, min_foreground: float = 0.3, warmup_frames: int = 3,
                  background_scale: float = 0.25):
         self.r_range = (float(r_range[0]), float(r_range[1]))

@@ -45,7 +45,7 @@ class CircleKalman:
 
     def __init__(self, t_us: int, z, *, velocity_px_s=(0.0, 0.0), velocity_sigma_px_s: float = 2000.0,
                  model: str = "ca", gravity_px_s2=(0.0, 0.0), accel_sigma_px_s2: float = 5000.0,
-                 q_px_s3: float = 2.0e5, q_r_px: float = 20.0, sigma_px: float = 1.0):
+                 q_px_s3: float = 3.0e4, q_r_px: float = 20.0, sigma_px: float = 1.0):
         if model not in ("ca", "cv"):
             raise ValueError(f"model must be 'ca' or 'cv', got {model!r}")
         self.model = model
@@ -86,7 +86,7 @@ class CircleKalman:
         f, q = self._transition((t_us - self.t_us) * 1e-6)
         return f @ self.x, f @ self.P @ f.T + q
 
-    def innovation(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> float:
+    def innovation(self, t_us: int, z, sigma_px: float) -> float:
         """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""
         x, p = self.predict(t_us)
         nu = np.asarray(z[:2], float) - x[:2]

@@ -77,8 +77,8 @@ class BallTracker:
     """
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
-                 r_range=(5.0, 100.0), min_score: float = 0.35, confirm_slices: int = 3, max_misses: int = 3,
-                 model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 2.0e5, gate_chi2: float = 25.0,
+                 r_range=(5.0, 100.0), min_score: float = 0.3, confirm_slices: int = 3, max_misses: int = 3,
+                 model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 3.0e4, gate_chi2: float = 25.0,
                  cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
@@ -110,7 +110,7 @@ class BallTracker:
         self._flight = -1
         self._misses = 0
         self._outliers = 0
-        self._tentative: list[tuple[int, CircleFit, tuple[float, float]]] = []
+        self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
         self._done: list[tuple[int, CircleKalman, list[float]]] = []
         self._new_rows: list[tuple] = []
         self.frames_skipped = 0
@@ -219,7 +219,7 @@ class BallTracker:
             self._end_flight()
             return
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
-        reach = 1.4 * r + 4.0 + 3.0 * sig
+        reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
         # a box around the swept circle first (cheap on all events), then the moving circle
         hx = reach + abs(vx) * self.slice_us * 0.5e-6
         hy = reach + abs(vy) * self.slice_us * 0.5e-6
@@ -237,7 +237,7 @@ class BallTracker:
                 self._end_flight()
             return
         sigma_r = 1.5 * fit.sigma_px
-        d2 = kf.innovation(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+        d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
         dist = np.hypot(fit.cx - cx, fit.cy - cy)
         if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
             kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
@@ -251,7 +251,7 @@ class BallTracker:
                 self._end_flight()
 
     def _search_slice(self, t, x, y, m) -> None:
-        best: tuple[CircleFit, tuple[float, float]] | None = None
+        best = None
         margin = 2 * self.cell_px
         for x0, y0, x1, y1 in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
                                               r_range=self.r_range):
@@ -259,15 +259,21 @@ class BallTracker:
             ts, xs, ys = t[sel], x[sel], y[sel]
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
-            if fit is not None and fit.score >= self.min_score and (best is None or fit.score > best[0].score):
-                best = (fit, v0)
+            if fit is None or fit.score < self.min_score or (best is not None and fit.score <= best[0].score):
+                continue
+            # a flight starts only on a ball (nearly) fully on the sensor: a partly visible one has a
+            # moving centroid, so its velocity and compensation would be wrong
+            inner = 0.8 * fit.r
+            if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
+                    and fit.cy + inner <= self.height - 1):
+                best = (fit, v0, (ts, xs, ys))
         if best is None:
             if self._tentative and m - self._tentative[-1][0] > 2 * self.slice_us:
                 self._tentative = []
             return
-        fit, v0 = best
+        fit, v0, evs = best
         if self._tentative:
-            tm, tf, tv = self._tentative[-1]
+            tm, tf, tv, _ = self._tentative[-1]
             dt_s = (m - tm) * 1e-6
             px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
             ok = (np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25
@@ -277,20 +283,27 @@ class BallTracker:
             elif len(self._tentative) >= 1:
                 v0 = ((fit.cx - self._tentative[0][1].cx) / ((m - self._tentative[0][0]) * 1e-6),
                       (fit.cy - self._tentative[0][1].cy) / ((m - self._tentative[0][0]) * 1e-6))
-        self._tentative.append((m, fit, v0))
+        self._tentative.append((m, fit, v0, evs))
         if len(self._tentative) >= self.confirm_slices:
             self._start_flight()
 
     def _start_flight(self) -> None:
-        (t0, f0, _), *rest = self._tentative
-        v = self._tentative[-1][2]
+        # refit the tentative detections with the velocity of their displacement (better
+        # motion compensation than each slice's own centroid velocity)
+        (ta, fa, _, _), (tb, fb, _, _) = self._tentative[0], self._tentative[-1]
+        v = ((fb.cx - fa.cx) / ((tb - ta) * 1e-6), (fb.cy - fa.cy) / ((tb - ta) * 1e-6))
+        fits = []
+        for tm, f, _, (ts, xs, ys) in self._tentative:
+            refit = self._fit(ts, xs, ys, tm, (f.cx, f.cy), v, self.r_range)
+            fits.append((tm, refit if refit is not None and refit.score >= self.min_score else f))
+        (t0, f0), *rest = fits
         self._flight += 1
         self._kf = CircleKalman(t0, (f0.cx, f0.cy, f0.r), velocity_px_s=v,
                                 velocity_sigma_px_s=0.2 * np.hypot(*v) + 50.0 * f0.r, sigma_px=f0.sigma_px,
                                 **self.kf_opts)
         self._scores = [f0.score]
         self._emit(t0)
-        for tm, f, _ in rest:
+        for tm, f in rest:
             self._kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
             self._scores.append(f.score)
             self._emit(tm)
@@ -324,7 +337,7 @@ class BallTracker:
             return
         c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
         sig_r = 1.5 * self.frame_sigma_px
-        d2 = kf.innovation(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+        d2 = kf.innovation(t_us, (c.cx, c.cy), self.frame_sigma_px)
         if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
             kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
             self._scores.append(c.score)

@@ -107,6 +107,36 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     return ball, sel
 
 
+def velocity_from_centroids(events, center, radius_px: float, *, t0_us=None, n_slices: int = 8,
+                            iterations: int = 3) -> np.ndarray:
+    """Rough image velocity (px/s) of a ball from the drift of its events' centroid.
+
+    Used when no tracker prior is given: events within ``1.5 r`` of the moving
+    centre are split into ``n_slices`` time slices; a line fitted to the slice
+    centroids gives ``v``; repeated ``iterations`` times with the updated centre
+    motion and a tighter circle.
+    """
+    t = events["t"]
+    t0 = int(t[0]) if t0_us is None else int(t0_us)
+    s = (t - t0).astype(np.float64) * 1e-6
+    x = events["x"].astype(np.float64)
+    y = events["y"].astype(np.float64)
+    v = np.zeros(2)
+    for k in range(iterations):
+        reach = radius_px * (1.5 if k == 0 else 1.1)
+        keep = (x - center[0] - v[0] * s) ** 2 + (y - center[1] - v[1] * s) ** 2 <= reach * reach
+        if keep.sum() < 2 * n_slices:
+            break
+        slices = np.array_split(np.flatnonzero(keep), n_slices)
+        ts = np.array([s[i].mean() for i in slices])
+        if np.ptp(ts) <= 0:
+            break
+        cx = np.array([x[i].mean() for i in slices])
+        cy = np.array([y[i].mean() for i in slices])
+        v = np.array([np.polyfit(ts, cx, 1)[0], np.polyfit(ts, cy, 1)[0]])
+    return v
+
+
 def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: str = "fast",
                   sensor_size=None, min_events: int = 200, **opts) -> SpinEstimate:
     """Estimate the ball's spin from its events by contrast maximisation.
@@ -122,7 +152,10 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     t0_us : int, optional
         Time of ``center``, µs; default the first event's time.
     velocity : (float, float), optional
-        Prior image velocity of the centre, px/s (from the tracker); default 0, refined.
+        Prior image velocity of the centre, px/s (from the tracker).  Without it a
+        rough one comes from the drift of the events' centroid
+        (:func:`velocity_from_centroids`) and is refined; confidence is then lower
+        for spin axes in the image plane on short windows.
     method : {"fast", "paper"}
         ``"fast"`` (default): coarse search + coarse-to-fine L-BFGS (:mod:`spin.fast`).
         ``"paper"``: the seed paper's joint Adam ascent (:mod:`spin.paper`).
@@ -142,7 +175,11 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     if method not in ("fast", "paper"):
         raise SpinInputError(f"method: {method!r} is not 'fast' or 'paper'")
     known = velocity is not None
-    v0 = np.zeros(2) if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(2)
+    if velocity is None:
+        _check_events(events)
+        v0 = velocity_from_centroids(events, center, radius, t0_us=t0_us) if len(events) else np.zeros(2)
+    else:
+        v0 = np.asarray(velocity, dtype=np.float64).reshape(2)
     if method == "fast":
         ev, sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
                           max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size)

@@ -9,9 +9,9 @@
    rotation to separate spin from translation.
 3. Confidence: the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) on the second-last level's events, the agreement of the IWEs of two halves of
-   the events (structure rather than over-fitted noise), and the motion the window
-   covers (pixels travelled at the ball's equator).
+   mirrored axis) on the second-last level's events, the agreement of the IWEs of
+   two halves of the events (structure rather than over-fitted noise), and the
+   motion the window covers (pixels travelled at the ball's equator).
 """
 
 from __future__ import annotations
@@ -26,8 +26,7 @@ from spin.search import by_time_to_reference, coarse_search, distinct_candidates
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
 # uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 16.0, 1.0, 600, 10), (6.0, 32.0, 1.0, 1500, 10), (6.0, 64.0, 1.0, 3000, 8),
-          (np.inf, 100.0, 0.55, 10000, 8))
+LEVELS = ((2.0, 12.0, 1.2, 500, 8), (6.0, 40.0, 1.0, 2500, 6), (np.inf, 100.0, 0.55, 8000, 6))
 
 
 @dataclass(frozen=True)
@@ -66,8 +65,9 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  omega_ratio: float = 1.4, n_candidates: int = 2, n_directions: int = 60,
-                  coarse_events: int = 250, levels=LEVELS, max_scale: float = 2.0, refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  omega_ratio: float = 1.6, n_candidates: int = 2, n_directions: int = 40,
+                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
+                  refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -131,10 +131,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
                        * np.clip(coverage_px / 3.0, 0, 1))
     if not velocity_known:
-        # without a velocity prior, rotation about an in-image axis and translation trade off
-        # unless the window covers a good part of a revolution
+        # without a tracker velocity the centre motion is itself estimated (and errors in it bend
+        # the axis): at most 0.5, less for in-image axes on windows short of a quarter turn, where
+        # rotation and translation trade off
         in_plane = float(np.linalg.norm(w[:2]) / max(np.linalg.norm(w), 1e-30))
         rotation_rad = float(np.linalg.norm(w)) * window_s
-        confidence *= 1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2)))
+        confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
                       agreement, margin, coverage_px)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from spin.warp import _coefficients, cross, left_jacobian_transpose_apply, rotate
+from spin.warp import rotation_coefficients, cross, left_jacobian_transpose_apply, rotate
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ class IweGeometry:
         return u, py * dt(self.scale) + off
 
 
-def _blur(image: np.ndarray, sigma: float) -> np.ndarray:
+def blur(image: np.ndarray, sigma: float) -> np.ndarray:
     k = 2 * int(np.ceil(3.0 * sigma)) + 1
     return cv2.GaussianBlur(image, (k, k), sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
 
@@ -109,24 +109,17 @@ def _corners(u, v, width, height):
     return idx, fu, fv
 
 
-def vote(u, v, weight, shape, n_images: int = 1) -> np.ndarray:
-    """Bilinear voting of ``weight`` at IWE coordinates into ``n_images`` stacked images.
-
-    ``u``, ``v`` may be (N,) or (N, M) for M images (column m goes to image m).
-    Returns float32 of shape (M * H, W).
-    """
+def vote(u, v, weight, shape) -> np.ndarray:
+    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``(u, v)`` (N,); float32 image of ``shape``."""
     h, w = shape
     idx, fu, fv = _corners(u, v, w, h)
-    if idx.ndim == 2:
-        idx = idx + (np.arange(idx.shape[1]) * (h * w))[None, :]
-    wgt = np.broadcast_to(weight.reshape(len(weight), *([1] * (idx.ndim - 1))), idx.shape).astype(np.float32)
-    idx, fu, fv, wgt = idx.ravel(), fu.ravel(), fv.ravel(), wgt.ravel()
+    wgt = weight.astype(np.float32)
     a = wgt * (1.0 - fv)
     b = wgt * fv
-    n = n_images * h * w
+    n = h * w
     img = (np.bincount(idx, a * (1.0 - fu), n) + np.bincount(idx + 1, a * fu, n)
            + np.bincount(idx + w, b * (1.0 - fu), n) + np.bincount(idx + w + 1, b * fu, n))
-    return img.astype(np.float32).reshape(n_images * h, w)
+    return img.astype(np.float32).reshape(h, w)
 
 
 def lift_moving(ev: BallEvents, velocity_px_s):
@@ -157,7 +150,7 @@ def iwe(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry) -> np.nda
     """Smoothed image of warped events, float32 of ``geometry.shape``."""
     q = warp(ev, w_rad_s, velocity_px_s)
     u, v = geometry.to_iwe(*q)
-    return _blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
+    return blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
 
 
 def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
@@ -182,23 +175,19 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     dt = ev.tau_s.dtype
     p, dzdx, dzdy = lift_moving(ev, velocity_px_s)
     theta = tuple(ev.tau_s * dt.type(w_rad_s[i]) for i in range(3))
-    coef = _coefficients(theta, gradient)
+    coef = rotation_coefficients(theta, gradient)
     q = rotate(p, theta, coef)
     u, v = geometry.to_iwe(*q)
     h, width = geometry.shape
-    idx, fu, fv = _corners(u, v, width, h)
-    wgt = ev.weight.astype(np.float32)
-    a = wgt * (1.0 - fv)
-    b = wgt * fv
     n = h * width
-    img = (np.bincount(idx, a * (1.0 - fu), n) + np.bincount(idx + 1, a * fu, n)
-           + np.bincount(idx + width, b * (1.0 - fu), n) + np.bincount(idx + width + 1, b * fu, n))
-    hs = _blur(img.astype(np.float32).reshape(h, width), geometry.sigma)
+    hs = blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
     mean = float(hs.mean())
     value = float(np.mean(np.square(hs - mean, dtype=np.float64)))
     if not gradient:
         return value
-    g = _blur(hs - mean, geometry.sigma).ravel() * (2.0 / n)
+    g = blur(hs - mean, geometry.sigma).ravel() * (2.0 / n)
+    idx, fu, fv = _corners(u, v, width, h)
+    wgt = ev.weight.astype(np.float32)
     g00, g01, g10, g11 = g[idx], g[idx + 1], g[idx + width], g[idx + width + 1]
     du = (wgt * geometry.scale) * ((1.0 - fv) * (g01 - g00) + fv * (g11 - g10))
     dv = (wgt * geometry.scale) * ((1.0 - fu) * (g10 - g00) + fu * (g11 - g01))

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, _blur, iwe, lift_moving
-from spin.warp import _coefficients
+from spin.objective import BallEvents, IweGeometry, blur, iwe, lift_moving
+from spin.warp import rotation_coefficients
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -42,37 +42,44 @@ def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_event
     return ev.take(np.linspace(0, inside - 1, n_events).astype(np.int64))
 
 
-def score_directions(ev: BallEvents, omega_rad_s: float, directions: np.ndarray, velocity_px_s,
-                     geometry: IweGeometry) -> np.ndarray:
-    """IWE variance for ``w = omega * d`` for every direction ``d`` (D, 3); returns (D,)."""
+def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: IweGeometry) -> np.ndarray:
+    """IWE variance for each angular velocity ``w`` (C, 3) rad/s, all on the same events; returns (C,).
+
+    Exact rotation broadcast over events x candidates, nearest-pixel voting into
+    stacked small IWEs (enough at this resolution: the blur does the rest).
+    """
     dt = np.float32
     (px, py, pz), _, _ = lift_moving(ev, velocity_px_s)
     px, py, pz = (c.astype(dt)[:, None] for c in (px, py, pz))
-    n = directions.astype(dt)
+    w = np.asarray(w_rad_s, dtype=np.float64)
+    omega = np.linalg.norm(w, axis=1)
+    n = (w / np.maximum(omega, 1e-30)[:, None]).astype(dt)
     nx, ny, nz = n[:, 0][None, :], n[:, 1][None, :], n[:, 2][None, :]
-    phi = (ev.tau_s * omega_rad_s).astype(dt)
-    a, b = _coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
-    big_a = (a * phi)[:, None]
-    big_b = (b * phi * phi)[:, None]
+    phi = ev.tau_s.astype(dt)[:, None] * omega.astype(dt)[None, :]
+    a, b = rotation_coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
+    big_a = a * phi
+    big_b = b * phi * phi
     ndp = px * nx + py * ny + pz * nz
     qx = px + big_a * (ny * pz - nz * py) + big_b * (nx * ndp - px)
     qy = py + big_a * (nz * px - nx * pz) + big_b * (ny * ndp - py)
     qz = pz + big_a * (nx * py - ny * px) + big_b * (nz * ndp - pz) if geometry.hemispheres else None
     u, v = geometry.to_iwe(qx, qy, qz)
-    h, w = geometry.shape
-    # nearest-pixel voting (one bincount) is enough at this resolution; the blur does the rest
-    idx = (v + 0.5).astype(np.int32) * w + (u + 0.5).astype(np.int32) + (np.arange(len(directions)) * (h * w))[None, :]
+    h, width = geometry.shape
+    c = len(w)
+    idx = (v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32) + (np.arange(c) * (h * width))[None, :]
     wgt = np.broadcast_to(ev.weight.astype(np.float32)[:, None], idx.shape)
-    img = np.bincount(idx.ravel(), wgt.ravel(), len(directions) * h * w).astype(np.float32)
-    img = _blur(img.reshape(len(directions) * h, w), geometry.sigma).reshape(len(directions), h * w)
+    img = np.bincount(idx.ravel(), wgt.ravel(), c * h * width).astype(np.float32)
+    img = blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
     return img.var(axis=1, dtype=np.float64)
 
 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
-                  omega_ratio: float = 1.2, n_directions: int = 120, span_rad: float = 0.6,
-                  n_events: int = 400, iwe_radius_px: float = 10.0, sigma: float = 1.0,
+                  omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
+                  n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
                   hemispheres: bool = False):
     """Score table over the (omega, direction) grid (``ev`` ordered by :func:`by_time_to_reference`).
+
+    Rows whose rotation span covers the same events share the event subset.
 
     Returns
     -------
@@ -80,17 +87,23 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     directions : ndarray (D, 3)
     scores : ndarray (M, D)
         IWE variance divided by the variance without rotation for the same events
-        (comparable across rows, which use different events).
+        (comparable across rows, which may use different events).
     """
     n_omega = int(np.ceil(np.log(omega_max_rad_s / omega_min_rad_s) / np.log(omega_ratio))) + 1
     omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
     directions = fibonacci_sphere(n_directions)
     geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres)
+    abs_tau = np.abs(ev.tau_s)
+    # rows with at most n_events inside their span all use the n_events nearest to t_ref
+    inside = np.searchsorted(abs_tau, 0.5 * span_rad / omegas, side="right")
+    keys = np.maximum(inside, n_events)
     scores = np.empty((n_omega, n_directions))
-    for i, om in enumerate(omegas):
-        sub = events_for_span(ev, om, span_rad, n_events)
+    for key in np.unique(keys):
+        rows = np.flatnonzero(keys == key)
+        sub = events_for_span(ev, float(omegas[rows[0]]), span_rad, n_events)
         still = float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64))
-        scores[i] = score_directions(sub, om, directions, velocity_px_s, geometry) / max(still, 1e-30)
+        for i in rows:  # one row at a time: (events x directions) arrays stay in cache
+            scores[i] = score_vectors(sub, omegas[i] * directions, velocity_px_s, geometry) / max(still, 1e-30)
     return omegas, directions, scores
 
 

@@ -17,15 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 
-def lift(dx_px: np.ndarray, dy_px: np.ndarray, radius_px: float) -> np.ndarray:
-    """Points on the camera-facing half sphere, shape (N, 3), from centre offsets (px).
-
-    Offsets outside the circle are put on the rim (``z = 0``).
-    """
-    z = -np.sqrt(np.maximum(radius_px * radius_px - dx_px * dx_px - dy_px * dy_px, 0.0))
-    return np.stack([dx_px, dy_px, z], axis=-1)
-
-
 def rotate_quaternion(points: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
     """Rotate ``points`` (N, 3) by ``angle_rad`` (N,) about unit ``axis`` ((3,) or (N, 3)): ``p' = q p q*``.
 
@@ -54,7 +45,7 @@ def cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def _coefficients(theta, need_c: bool):
+def rotation_coefficients(theta, need_c: bool):
     phi2 = theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]
     phi = np.sqrt(phi2)
     small = phi < 1e-2
@@ -73,7 +64,7 @@ def rotate(p, theta, coefficients=None):
 
     Returns the rotated components; ``coefficients`` may pass precomputed ``(a, b)``.
     """
-    a, b = _coefficients(theta, False) if coefficients is None else coefficients[:2]
+    a, b = rotation_coefficients(theta, False) if coefficients is None else coefficients[:2]
     txp = cross(theta, p)
     txtxp = cross(theta, txp)
     return tuple(p[i] + a * txp[i] + b * txtxp[i] for i in range(3))
@@ -86,7 +77,7 @@ def left_jacobian_transpose_apply(theta, vec, coefficients=None):
     ``c = (phi - sin)/phi^3``; it maps a change of the rotation vector to the
     change of the rotated point: ``d(R p) = -[R p]x J_l d theta``.
     """
-    _, b, c = _coefficients(theta, True) if coefficients is None else coefficients
+    _, b, c = rotation_coefficients(theta, True) if coefficients is None else coefficients
     txa = cross(theta, vec)
     txtxa = cross(theta, txa)
     return tuple(vec[i] - b * txa[i] + c * txtxa[i] for i in range(3))

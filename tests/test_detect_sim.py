@@ -103,3 +103,75 @@ def test_ignores_a_player_like_distractor():
 
     _, _, ev_player = _scene_events(lambda cam, rng: [_player()], 0.06, 7)
     assert len(track_ball(ev_player, width=W, height=H)) == 0
+
+
+def _flight_truth(rec, t_us):
+    tt = rec.truth_track(visible_only=False)
+    return [np.interp(t_us, tt.t_us, getattr(tt, c)) for c in ("cx", "cy", "r", "vx", "vy")]
+
+
+def test_ball_leaving_and_reentering_gives_two_flights():
+    from sim.esim import merge
+
+    # first pass: enters left, leaves right within 40 ms; second: re-enters 30 ms later
+    a = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 150.0),
+                   velocity_px_s=(13_000.0, -1500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
+                   seed=11)
+    b = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 220.0),
+                   velocity_px_s=(13_000.0, -2500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
+                   seed=12, t0_us=70_000)
+    ev = merge(a.events, b.events)
+    tr = track_ball(ev, width=W, height=H)
+    ids = tr.flight_ids()
+    assert len(ids) == 2
+    for fid, rec in zip(ids, (a, b)):
+        part = tr.select(tr.flight == fid)
+        assert rec.truth["t0_us"] <= part.t_us.min() and part.t_us.max() <= rec.truth["t0_us"] + 40_000
+        cx, cy, r, vx, vy = _flight_truth(rec, part.t_us)
+        inside = (cx - r >= 0) & (cx + r <= W - 1)
+        assert inside.sum() >= 8
+        err = np.hypot(part.cx - cx, part.cy - cy)[inside]
+        assert np.median(err) < 0.5 and err.max() < 1.5
+        # every 2 ms slice with the ball fully on the sensor has a row
+        assert inside.sum() >= np.sum(np.arange(rec.truth["t0_us"] + 1000, rec.truth["t0_us"] + 40_000, 2000)
+                                      <= part.t_us.max()) - 6
+
+
+def test_frames_detector_and_fusion_on_simulated_frames():
+    from detect.frame_detector import FrameDetector
+
+    rec = sim.flight(radius_px=16, width=W, height=H, duration_s=0.06, start_px=(30.0, 120.0),
+                     velocity_px_s=(5000.0, -800.0), rps=20, distractors=("player",), noise_rate_hz=1.0,
+                     hot_pixels=10, fps=240.0, exposure_s=0.0005, seed=13)
+    fd = FrameDetector((8, 40))
+    hits = n = 0
+    for k, (img, t) in enumerate(zip(rec.frames, rec.frame_times_us)):
+        circles = fd.detect(img)
+        cx, cy, r, _, _ = _flight_truth(rec, t)
+        if k >= 4 and cx + r < W - 1:  # background model warm, ball fully in view
+            n += 1
+            hits += bool(circles) and np.hypot(circles[0].cx - cx, circles[0].cy - cy) < 1.0
+    assert n >= 8 and hits >= 0.7 * n
+    tr = track_ball(rec.events, width=W, height=H, frames=rec.frames, frame_times_us=rec.frame_times_us)
+    assert len(tr.flight_ids()) == 1
+    assert np.isin(rec.frame_times_us, tr.t_us).sum() >= 3  # frame detections were fused
+    cx, cy, *_ = _flight_truth(rec, tr.t_us)
+    assert np.median(np.hypot(tr.cx - cx, tr.cy - cy)) < 0.5
+
+
+def test_track_feeds_spin_windows(spinning_flight):
+    from detect import spin_windows
+
+    ev, truth = spinning_flight
+    tr = track_ball(ev, width=W, height=H)
+    wins = list(spin_windows(ev, tr, window_us=4000, min_events=500))
+    assert len(wins) >= 0.8 * (tr.t_us[-1] - tr.t_us[0]) / 4000
+    for w in wins:
+        ex, ey = _truth_xy(truth, w.t_start_us)
+        assert np.hypot(w.center[0] - ex, w.center[1] - ey) < 1.0
+        assert np.hypot(*(np.asarray(w.velocity_px_s) - truth["velocity_px_s"])) < 0.03 * np.hypot(
+            *truth["velocity_px_s"])
+        # the window keeps the ball's events and little else
+        d = np.hypot(w.events["x"] - (ex + truth["velocity_px_s"][0] * (w.events["t"] - w.t_start_us) * 1e-6),
+                     w.events["y"] - (ey + truth["velocity_px_s"][1] * (w.events["t"] - w.t_start_us) * 1e-6))
+        assert np.mean(d <= truth["radius_px"] + 1.5) > 0.99

@@ -23,12 +23,13 @@ def _disk(rng, n, cx, cy, r, ring=False):
     return cx + rr * np.cos(a), cy + rr * np.sin(a)
 
 
-def _ball_events(rng, t0, t1, c0, v, r, rate=2e6):
+def _ball_events(rng, t0, t1, c0, v, r, rate=2e6, g=0.0):
     n = int(rate * (t1 - t0) * 1e-6)
     t = np.sort(rng.integers(t0, t1, n))
     x, y = _disk(rng, n, 0.0, 0.0, r)
-    x = np.floor(x + c0[0] + v[0] * (t - t0) * 1e-6 + 0.5)
-    y = np.floor(y + c0[1] + v[1] * (t - t0) * 1e-6 + 0.5)
+    dt = (t - t0) * 1e-6
+    x = np.floor(x + c0[0] + v[0] * dt + 0.5)
+    y = np.floor(y + c0[1] + v[1] * dt + 0.5 * g * dt * dt + 0.5)
     ok = (x >= 0) & (x < W) & (y >= 0) & (y < H)
     return t[ok], x[ok], y[ok]
 
@@ -152,6 +153,18 @@ def test_tracks_ball_among_noise_hot_pixels_and_blob():
     assert np.all(np.hypot(tr.cx - 250, tr.cy - 150) > 40)
 
 
+@pytest.mark.parametrize("model", ["ca", "cv"])
+def test_velocity_follows_image_gravity(model):
+    g = 40_000.0  # px/s^2: strong, so that ignoring it would show
+    rng = np.random.default_rng(14)
+    ev = _events([_ball_events(rng, 0, 60_000, (30.0, 60.0), (3000.0, -1500.0), 12.0, g=g)])
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40), model=model, gravity_px_s2=(0.0, g))
+    assert len(tr.flight_ids()) == 1 and len(tr) > 20
+    dt = tr.t_us * 1e-6
+    assert np.median(np.abs(tr.vy - (-1500.0 + g * dt))) < 40
+    assert np.median(np.abs(tr.cy - (60.0 - 1500.0 * dt + 0.5 * g * dt * dt))) < 0.3
+
+
 def test_empty_and_ball_free_inputs_give_empty_tracks():
     assert len(track_ball(empty_events(), width=W, height=H)) == 0
     rng = np.random.default_rng(8)
@@ -208,6 +221,10 @@ def test_bad_arguments_raise():
         BallTracker(W, H, slice_us=3000, block_us=20000)
     with pytest.raises(TypeError, match="EVENT_DTYPE"):
         BallTracker(W, H).update(np.zeros(3))
+    with pytest.raises(ValueError, match="frame_times_us"):
+        track_ball(empty_events(), width=W, height=H, frames=[np.zeros((H, W), np.uint8)])
+    with pytest.raises(ValueError, match="model"):
+        BallTracker(W, H, model="cj")
 
 
 def _frames(n, c0, v_px_frame, r, seed=12):

@@ -84,9 +84,12 @@ def test_max_duration_and_stop_event_keep_a_decodable_prefix(tmp_path, shared_ra
     assert len(part) and np.array_equal(part, ref.events[: len(part)])
 
     stop = threading.Event()
-    with evk.open(backend=FakeEVK(src, packet_bytes=ros_chunks)) as cam:
-        stats = evk.record(cam, tmp_path / "b.raw", stop=stop, on_batch=lambda e, t: stop.set())
-    assert stats.stop_reason == "stop"
+    timer = threading.Timer(0.2, stop.set)
+    timer.start()
+    with evk.open(backend=FakeEVK(src, pace="recorded", speed=1.0, packet_bytes=ros_chunks)) as cam:
+        stats = evk.record(cam, tmp_path / "b.raw", stop=stop, on_batch=lambda e, t: None)
+    timer.join()
+    assert stats.stop_reason == "stop" and 0 < stats.payload_bytes < len(payload_of(src))
     assert payload_of(tmp_path / "b.raw") == payload_of(src)[: stats.payload_bytes]
 
 
@@ -94,7 +97,7 @@ def test_idle_timeouts_are_not_errors(tmp_path, shared_raw_dir):
     src = shared_raw_dir / SAMPLE
     _, stats, out, _ = record_fake(tmp_path, src, decode=False, packet_bytes=8192,
                                    pause_after_bytes=(200_000, 0.35))
-    assert stats.n_timeouts >= 3 and stats.stop_reason == "end_of_stream"
+    assert stats.n_timeouts >= 2 and stats.stop_reason == "end_of_stream"
     assert payload_of(out) == payload_of(src)
 
 
@@ -147,11 +150,11 @@ def test_slow_consumer_lags_but_loses_nothing(tmp_path, shared_raw_dir, ros_chun
     got = []
 
     def slow(events, triggers):
-        threading.Event().wait(0.05)  # 105 packets x 50 ms: far slower than the stream
+        threading.Event().wait(0.1)  # 105 packets x 100 ms: far slower than the 0.6 s stream
         got.append(events)
 
-    with evk.open(backend=FakeEVK(src, pace="recorded", speed=4.0, packet_bytes=ros_chunks)) as cam:
-        cam.queue_bytes = 65536  # far less than the file: decoding must not hold up the USB path
+    with evk.open(backend=FakeEVK(src, pace="recorded", speed=2.0, packet_bytes=ros_chunks)) as cam:
+        cam.queue_bytes = 262144  # 0.2 s of this stream: decoding must not hold up the USB path
         stats = evk.record(cam, tmp_path / "rec.raw", on_batch=slow)
     assert stats.dropped_bytes == 0 and stats.lossless
     assert np.array_equal(np.concatenate(got), raw.read(src).events)

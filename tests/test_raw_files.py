@@ -8,6 +8,7 @@ import pytest
 
 import capture.raw as raw
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, make_events, make_triggers
+from tests.raw_cases import FILES, FILES_WITH_NPY
 
 
 @pytest.fixture(scope="module")
@@ -15,14 +16,6 @@ def expected(shared_raw_dir):
     return json.loads((shared_raw_dir / "expected.json").read_text())["files"]
 
 
-def _expected_files() -> dict:
-    from tests.conftest import SHARED
-    path = SHARED / "data" / "raw" / "expected.json"
-    return json.loads(path.read_text())["files"] if path.is_file() else {}
-
-
-FILES = sorted(_expected_files())
-FILES_WITH_NPY = sorted(n for n, e in _expected_files().items() if e.get("reference_files"))
 
 
 @pytest.fixture(scope="module")

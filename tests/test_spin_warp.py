@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from spin.objective import BallEvents, IweGeometry, contrast, warp
-from spin.warp import lift, rotate_quaternion, rotate_rodrigues
+from spin.objective import BallEvents, IweGeometry, contrast, lift_moving, warp
+from spin.warp import rotate_quaternion, rotate_rodrigues
 
 
 def _random_points(rng, n, r=50.0):
     ang = rng.uniform(0, 2 * np.pi, n)
     rad = r * np.sqrt(rng.uniform(0, 0.9, n))
-    return lift(rad * np.cos(ang), rad * np.sin(ang), r)
+    return np.stack([rad * np.cos(ang), rad * np.sin(ang), -np.sqrt(r * r - rad * rad)], axis=1)
 
 
 def test_quaternion_and_rodrigues_agree():
@@ -45,9 +45,14 @@ def test_zero_omega_is_identity():
     assert np.allclose(q[0], p[:, 0]) and np.allclose(q[1], p[:, 1]) and np.allclose(q[2], p[:, 2])
 
 
-def test_lift_is_on_camera_facing_half_sphere():
-    p = lift(np.array([0.0, 3.0]), np.array([0.0, 4.0]), 5.0)
-    assert np.allclose(p, [[0, 0, -5], [3, 4, 0]])
+def test_lift_is_on_camera_facing_half_sphere_with_moving_centre():
+    # centre moves +100 px/s in x: at s = 0.03 s an event at x = 3 sits on the centre
+    ev = BallEvents(np.array([0.0, 3.0, 3.0]), np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.03, 0.0]),
+                    np.zeros(3), np.ones(3), 5.0)
+    (px, py, pz), dzdx, _ = lift_moving(ev, (100.0, 0.0))
+    assert np.allclose(px, [0, 0, 3]) and np.allclose(py, [0, 0, 4])
+    assert np.allclose(pz[:2], -5.0) and pz[2] < 0 and abs(pz[2]) <= 0.5 + 1e-9  # rim clamped at 0.1 r
+    assert dzdx[2] == 0.0
 
 
 @pytest.mark.parametrize("hemispheres", [False, True])

@@ -45,8 +45,9 @@ class RecordStats:
         side may be overflowing), reads that timed out (idle).
     queue_peak_bytes : int
         Highest queue occupancy.
-    read_gap_us : float
-        Mean time between two data reads with no read pending (pyusb has one at a time).
+    read_gap_us, max_read_gap_us : float
+        Mean and longest time between two data reads, with no read pending (pyusb has one
+        at a time): the device must buffer the data produced meanwhile.
     stream_s : float
         Wall-clock time until streaming ended and every byte was on disk.
     duration_s, cpu_s : float
@@ -74,6 +75,7 @@ class RecordStats:
     n_timeouts: int = 0
     queue_peak_bytes: int = 0
     read_gap_us: float = 0.0
+    max_read_gap_us: float = 0.0
     stream_s: float = 0.0
     duration_s: float = 0.0
     cpu_s: float = 0.0
@@ -108,7 +110,7 @@ class _FileDecoder(threading.Thread):
     them back (page cache) at its own pace and catches up after the stream ends.
     """
 
-    READ_BYTES = 8 << 20
+    READ_BYTES = 1 << 20  # small batches: the GIL is held for a few ms at most per decode
 
     def __init__(self, path: Path, offset: int, decoder: StreamDecoder, on_batch, stats: RecordStats):
         super().__init__(name="evk-decoder", daemon=True)
@@ -260,6 +262,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                 stats.dropped_bytes, stats.overflows = reader.dropped_bytes, reader.n_overflows
                 stats.queue_peak_bytes = reader.queue.peak_bytes
                 stats.read_gap_us = reader.gap_s / max(reader.n_reads, 1) * 1e6
+                stats.max_read_gap_us = reader.max_gap_s * 1e6
             if monitor is not None:
                 stats.time_jumps = monitor.jumps
     if decode is not None and decode.error is not None:

@@ -155,6 +155,7 @@ class Reader(threading.Thread):
         self.error: EvkError | None = None
         self.end_of_stream = False
         self.gap_s = 0.0
+        self.max_gap_s = 0.0
         self._free: deque = deque()
         self._n_buffers = 0
         self._max_buffers = max(2, self.queue.capacity_bytes // self.read_bytes + 1)
@@ -196,12 +197,15 @@ class Reader(threading.Thread):
         scratch = array.array("B", bytes(size))  # used only when every pooled buffer is queued
         t_done = None
         try:
-            buf = self._buffer()
+            buf = None
             while not self._stop_event.is_set():
+                if buf is None:
+                    buf = self._buffer()
                 target = buf if buf is not None else scratch
                 t_call = clock()
                 if t_done is not None:
                     self.gap_s += t_call - t_done
+                    self.max_gap_s = max(self.max_gap_s, t_call - t_done)
                 try:
                     n = read(ep, target, timeout)
                 except usb.core.USBTimeoutError:
@@ -217,8 +221,6 @@ class Reader(threading.Thread):
                 t_done = clock()
                 self.n_reads += 1
                 if not n:
-                    if buf is None:
-                        buf = self._buffer()
                     continue
                 self.bytes_read += n
                 if n == size:
@@ -231,13 +233,11 @@ class Reader(threading.Thread):
                     chunk = None
                 if chunk is not None and queue.put(chunk):
                     if chunk.buffer is buf:
-                        buf = self._buffer()
+                        buf = None  # now owned by the queue; take another from the pool
                 else:  # queue full: the data is lost, counted and marked
                     self.dropped_bytes += n
                     self.n_overflows += 1
                     queue.put_gap(n)
-                    if buf is None:
-                        buf = self._buffer()
         except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
             self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
         finally:

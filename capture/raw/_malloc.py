@@ -4,8 +4,10 @@ Each batch allocates NumPy temporaries of 0.1–30 MB. With glibc's defaults tho
 returned to the OS when freed and page-faulted back on the next batch; on a VM a fault
 costs about 3 µs per 4 KiB page, which made decoding 2–3x slower than the arithmetic.
 :func:`keep_freed_memory` raises the thresholds so that blocks up to 32 MiB come from
-the heap and up to 256 MiB of free heap is kept (larger blocks are still mapped
-directly; huge pages make those cheap). Called once when :mod:`capture.raw` is imported.
+the heap and up to 256 MiB of free heap is kept for reuse (larger blocks are still
+mapped directly; transparent huge pages make those cheap). Measured on the shared
+recordings and a 4M-event file: this minimises page faults per decoded file. Called
+once when :mod:`capture.raw` is imported.
 """
 
 from __future__ import annotations

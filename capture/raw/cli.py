@@ -112,7 +112,7 @@ def main(argv=None) -> int:
         else:
             _print(convert(args.file, args.session_dir, time_shift=args.time_shift,
                            overwrite=args.overwrite, progress=not args.no_progress))
-    except (RawFormatError, SessionError, FileNotFoundError) as exc:
+    except (RawFormatError, SessionError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

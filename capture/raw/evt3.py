@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, first_of_type, in_bounds,
-                                  make_events, triggers_from, xy_view)
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, first_of_type,
+                                  in_bounds, make_events, merge_order, time_high_words, triggers_from, xy_view)
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
@@ -51,52 +51,71 @@ def _running(mask: np.ndarray) -> np.ndarray:
     return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
 
 
-def _time_after(styp, spay, st: DecoderState, w0: int, spos) -> np.ndarray:
+def _lookup(table: np.ndarray, run: np.ndarray, n_queries: int):
+    """``f(k)`` = value of ``table`` in force after state word ``k`` (``run`` indexes ``table``).
+
+    Materialises the per-state-word values when there are more queries than state words,
+    otherwise composes the two lookups per query.
+    """
+    if n_queries >= len(run):
+        per_state = table.take(run)
+        return per_state.take
+    return lambda k: table.take(run.take(k))
+
+
+def _running0(mask: np.ndarray) -> np.ndarray:
+    """Running count of ``mask`` with a leading 0: index into a table whose entry 0 is the prior state."""
+    out = np.empty(len(mask) + 1, np.int32 if len(mask) < (1 << 31) else np.int64)
+    out[0] = 0
+    np.cumsum(mask, out=out[1:])
+    return out
+
+
+def _time_lookup(styp, spay, st: DecoderState, w0: int, spos):
     """Time (µs) in force after each state word, from its TIME_LOW / TIME_HIGH words.
 
     ``styp`` / ``spay`` are the types / payloads of the batch's state words (positions
-    ``spos``). Returns int64 of ``len(styp) + 1`` with the time before the batch first.
-    Updates the time part of ``st`` and its statistics.
+    ``spos``). Returns ``make(n_queries)`` giving ``f(k)`` = time after state word ``k - 1``
+    (``k = 0``: the time before the batch), built for ``n_queries`` lookups (see
+    :func:`_lookup`). Updates the time part of ``st`` and its statistics.
     """
     is_th = styp == _TIME_HIGH
-    is_time = is_th | (styp == _TIME_LOW)
-    tsel = np.flatnonzero(is_time)
-    if len(tsel) == 0:
-        return np.full(len(styp) + 1, st.t_us, np.int64)
-    tth = is_th.take(tsel)
-    tpay = spay.take(tsel)
-    thk = np.flatnonzero(tth)                   # TIME_HIGH words among the time words
-    setter = ~tth                               # words that set time_low (TIME_LOW, changed TIME_HIGH)
-    high_table = np.empty(len(thk) + 1, np.int64)
+    setter = styp == _TIME_LOW                  # words that set time_low (+ changed TIME_HIGH)
+    thsel = np.flatnonzero(is_th)
+    high_table = np.empty(len(thsel) + 1, np.int64)
     high_table[0] = st.t_us >> 12
-    if len(thk):
-        thv = tpay.take(thk).astype(np.int64)
+    if len(thsel):
+        thv = spay.take(thsel).astype(np.int64)
         step = np.diff(thv, prepend=st.th_raw)
         wrap = step < -(TIME_HIGH_WRAP // 2)
         loops = st.loops + np.cumsum(wrap)
         np.add(thv, loops * TIME_HIGH_WRAP, out=high_table[1:])
         back = (step < 0) & ~wrap
         if back.any():
-            st.damage("time_backward", np.count_nonzero(back), w0 + int(spos[tsel[thk[np.argmax(back)]]]))
+            st.damage("time_backward", np.count_nonzero(back), w0 + int(spos[thsel[np.argmax(back)]]))
         st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
         st.stats["time_loops"] += int(loops[-1] - st.loops)
         st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
         # TIME_LOW resets to 0 when TIME_HIGH changes; a repeated TIME_HIGH keeps it.
-        setter[thk] = step != 0
+        setter[thsel[step != 0]] = True
     low_sel = np.flatnonzero(setter)
     low_table = np.empty(len(low_sel) + 1, np.int64)
     low_table[0] = st.tl
-    low_table[1:] = tpay.take(low_sel)
-    low_table[1:][tth.take(low_sel)] = 0
-    t_time = np.empty(len(tsel) + 1, np.int64)  # time after each time word
-    t_time[0] = st.t_us
-    np.left_shift(high_table.take(_running(tth)), 12, out=t_time[1:])
-    t_time[1:] |= low_table.take(_running(setter))
-    st.t_us, st.tl = int(t_time[-1]), int(t_time[-1] & 0xFFF)
-    t_state = np.empty(len(styp) + 1, np.int64)
-    t_state[0] = t_time[0]
-    t_state[1:] = t_time.take(_running(is_time))
-    return t_state
+    low_table[1:] = spay.take(low_sel)
+    low_table[1:][is_th.take(low_sel)] = 0
+    st.tl = int(low_table[-1])
+    st.t_us = (int(high_table[-1]) << 12) | st.tl
+    h_run = _running0(is_th)
+    l_run = _running0(setter)
+
+    def make(n_queries: int):
+        if n_queries < len(h_run):
+            return lambda k: (high_table.take(h_run.take(k)) << 12) | low_table.take(l_run.take(k))
+        t_state = high_table.take(h_run)
+        t_state <<= 12
+        t_state |= low_table.take(l_run)
+        return t_state.take
+    return make
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -160,13 +179,13 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     spos = np.flatnonzero(is_state)
     styp = typ.take(spos)
     spay = pay.take(spos)
-    t_state = _time_after(styp, spay, st, w0, spos)
+    make_time_at = _time_lookup(styp, spay, st, w0, spos)
     s_is_y = styp == _ADDR_Y
     y_sel = np.flatnonzero(s_is_y)
     y_table = np.empty(len(y_sel) + 1, np.uint16)
     y_table[0] = st.y
     y_table[1:] = spay.take(y_sel)
-    y_state = y_table.take(np.concatenate(([0], _running(s_is_y))))
+    y_run = _running0(s_is_y)
     st.y = int(y_table[-1])
 
     only_x_and_state = n_tr + n_rest == 0
@@ -183,7 +202,7 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     if n_tr:
         tr = np.flatnonzero(is_tr)
         tp = pay.take(tr)
-        triggers = triggers_from(t_state.take(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
+        triggers = triggers_from(make_time_at(len(tr))(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
         st.stats["triggers"] += len(triggers)
 
     vsel = np.flatnonzero((styp >> 1) == (_VECT_12 >> 1)) if n_vec else None
@@ -194,15 +213,18 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         if len(vb):
             last = int(spay[vb[-1]])
             st.base_x, st.base_pol = last & 0x7FF, last >> 11
-    if n_x == 0 and (n_vec == 0 or int(v_count.sum()) == 0):
+    n_events = n_x + (int(v_count.sum()) if n_vec else 0)
+    if n_events == 0:
         return EMPTY_EVENTS, triggers
+    t_at = make_time_at(n_events)
+    y_at = _lookup(y_table, y_run, n_events)
 
     xpos = np.flatnonzero(is_x)
     kx = state_index(xpos)
     px = pay.take(xpos)
     if n_vec == 0:
-        t = t_state.take(kx)
-        y = y_state.take(kx)
+        t = t_at(kx)
+        y = y_at(kx)
         x = px & 0x7FF
         p = px >> 11
         def locate(i):
@@ -222,8 +244,8 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         k = np.empty(total, kx.dtype)
         k[at_x] = kx
         k[at_v] = vsel.take(row) + 1
-        t = t_state.take(k)
-        y = y_state.take(k)
+        t = t_at(k)
+        y = y_at(k)
         x = np.empty(total, np.uint16)
         x[at_x] = px & 0x7FF
         rank = np.arange(len(row)) - v_first.take(row)
@@ -333,8 +355,6 @@ def encode(events: np.ndarray, triggers: np.ndarray | None = None, *, width: int
     ndarray of uint16
         The words, to be written little-endian after a header.
     """
-    from capture.raw._common import check_events, merge_order, time_high_words
-
     events, triggers = check_events(events, triggers, width, height, max_channel=15)
     n_ev = len(events)
     t = events["t"]

@@ -11,7 +11,7 @@ import numpy as np
 
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 from capture.raw import evt2, evt3
-from capture.raw._common import concat
+from capture.raw._common import as_void, concat
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
 from capture.raw.stream import DEFAULT_CHUNK_BYTES, WRAP_US, RawReader
@@ -47,6 +47,27 @@ class RawFile:
     header: dict
     stats: dict = field(default_factory=dict)
     time_shift_us: int = 0
+
+
+class _Growing:
+    """An array of records appended batch by batch into one buffer (doubling when full)."""
+
+    def __init__(self, dtype: np.dtype, capacity: int):
+        self._buf = np.empty(max(capacity, 1), dtype)
+        self._n = 0
+
+    def append(self, records: np.ndarray) -> None:
+        end = self._n + len(records)
+        if end > len(self._buf):
+            bigger = np.empty(max(2 * len(self._buf), end), self._buf.dtype)
+            as_void(bigger)[:self._n] = as_void(self._buf)[:self._n]
+            self._buf = bigger
+        as_void(self._buf)[self._n:end] = as_void(records)
+        self._n = end
+
+    def array(self) -> np.ndarray:
+        """The records so far (a view: the unused tail of the buffer is never touched)."""
+        return self._buf[:self._n]
 
 
 def read(path, *, time_shift: bool = False, strict: bool = False, format: str | None = None,
@@ -86,10 +107,13 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
     if reader.width is None or reader.height is None:
         reader.close()
         raise RawFormatError(f"{path}: the header gives no sensor geometry; pass width= and height=")
-    ev_parts, tr_parts = [], []
+    # One output buffer sized for about one event per word (grown when vectors give more):
+    # large ones are mapped with huge pages, and each batch's own arrays are reused memory.
+    n_words = max(0, (reader.size_bytes or 0) - reader.header_size) // reader.decoder.word_bytes
+    out = _Growing(EVENT_DTYPE, n_words)
+    tr_parts = []
     for events, triggers in reader:
-        if len(events):
-            ev_parts.append(events)
+        out.append(events)
         if len(triggers):
             tr_parts.append(triggers)
     message = reader.damage_message()
@@ -98,7 +122,7 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
             raise RawFormatError(message)
         warnings.warn(message, RawDamageWarning, stacklevel=2)
     return RawFile(
-        events=concat(ev_parts, EVENT_DTYPE), triggers=concat(tr_parts, TRIGGER_DTYPE),
+        events=out.array(), triggers=concat(tr_parts, TRIGGER_DTYPE),
         width=int(reader.width), height=int(reader.height), format=reader.format,
         header=reader.header, stats=reader.decoder.stats, time_shift_us=reader.decoder.time_shift_us)
 

@@ -8,13 +8,14 @@ incomplete word and the full time / address state from one call to the next.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 from capture.raw import evt2, evt3
-from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState
+from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, concat
 from capture.raw.errors import RawFormatError
 from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
 
@@ -24,8 +25,11 @@ WORD_BYTES = {"EVT2": 4, "EVT21": 8, "EVT3": 2}
 WRAP_US = {"EVT2": 1 << 34, "EVT21": 1 << 34, "EVT3": 1 << 24}
 """Period of the format's wrapping time base in µs."""
 
-DEFAULT_CHUNK_BYTES = 1 << 24
-"""Bytes read per batch when streaming a file (16 MiB: ~8M EVT3 words)."""
+BATCH_WORDS = 1 << 19
+"""Words decoded per NumPy pass; a larger ``decode`` call is split (bounds the temporaries)."""
+
+DEFAULT_CHUNK_BYTES = 1 << 20
+"""Bytes read per batch when streaming a file (1 MiB: temporaries stay small and reusable)."""
 
 
 class StreamDecoder:
@@ -119,19 +123,28 @@ class StreamDecoder:
         self._tail = bytes(data[cut:])
         if n_words == 0:
             return EMPTY_EVENTS, EMPTY_TRIGGERS
-        st = self._state
         if self.format == "EVT3":
-            events, triggers = evt3.decode_words(np.frombuffer(data, "<u2", n_words), st)
+            words = np.frombuffer(data, "<u2", n_words)
         elif self.format == "EVT2":
-            events, triggers = evt2.decode_words(np.frombuffer(data, "<u4", n_words), st)
+            words = np.frombuffer(data, "<u4", n_words)
         else:
             words = np.frombuffer(data, "<u4", 2 * n_words).reshape(-1, 2)
-            events, triggers = evt2.decode_words_21(words, st, endianness=self.endianness)
+        parts = [self._decode_batch(words[i:i + BATCH_WORDS]) for i in range(0, n_words, BATCH_WORDS)]
+        events = concat([p[0] for p in parts if len(p[0])], EVENT_DTYPE)
+        triggers = concat([p[1] for p in parts if len(p[1])], TRIGGER_DTYPE)
         shift = self.time_shift_us
-        if shift:
+        if shift and len(events):
             events["t"] -= shift
+        if shift and len(triggers):
             triggers["t"] -= shift
         return events, triggers
+
+    def _decode_batch(self, words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.format == "EVT3":
+            return evt3.decode_words(words, self._state)
+        if self.format == "EVT2":
+            return evt2.decode_words(words, self._state)
+        return evt2.decode_words_21(words, self._state, endianness=self.endianness)
 
     def finish(self) -> None:
         """End of stream: count an incomplete last word (and EVT3 vector triplet) as damage."""
