@@ -12,6 +12,9 @@ parse_header(data) / header_bytes(format=..., width=..., height=...)
     Read / write the ``% key value`` header.
 write(path, events, triggers=None, format="EVT3", width=..., height=...) / encode(...)
     Encode arrays as a RAW file (EVT3 with vectors, or EVT2).
+
+Command line: ``python -m capture.raw info FILE`` and ``python -m capture.raw convert FILE SESSION_DIR``.
+Importing this package tunes glibc's allocator to keep freed memory (see ``_malloc``).
 """
 
 from capture.raw._malloc import keep_freed_memory

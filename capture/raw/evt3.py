@@ -170,8 +170,9 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
     n_x, n_vec, n_state, n_tr = (int(np.count_nonzero(m)) for m in (is_x, is_vec, is_state, is_tr))
     n_rest = len(w) - n_x - n_state - n_tr         # OTHERS / CONTINUED / IMU / unknown words
     if n_rest:
-        st.stats["others"] += int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
-        n_unknown = n_rest - int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        n_other = int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
+        st.stats["others"] += n_other
+        n_unknown = n_rest - n_other
         if n_unknown:
             st.damage("unknown_words", n_unknown, w0 + int(np.argmax(np.isin(typ, _UNKNOWN_TYPES))))
 
@@ -227,6 +228,7 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         y = y_at(kx)
         x = px & 0x7FF
         p = px >> 11
+
         def locate(i):
             return w0 + int(xpos[i])
     else:

@@ -110,7 +110,7 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
     # One output buffer sized for about one event per word (grown when vectors give more):
     # large ones are mapped with huge pages, and each batch's own arrays are reused memory.
     n_words = max(0, (reader.size_bytes or 0) - reader.header_size) // reader.decoder.word_bytes
-    out = _Growing(EVENT_DTYPE, n_words)
+    out = _Growing(EVENT_DTYPE, min(n_words, 1 << 25))
     tr_parts = []
     for events, triggers in reader:
         out.append(events)
