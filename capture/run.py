@@ -63,6 +63,8 @@ class RecordSettings:
         ``GoPro.configure`` keyword arguments.
     led_roi : tuple or None
         Sync-box LED region ``(x0, y0, x1, y1)`` in GoPro pixels (None: found automatically).
+    exposure_s : float or None
+        GoPro shutter (exposure) time, s, when locked (None: estimated from the sync box).
     viewer : str
         ``spawn``, ``serve`` or ``none``.
     max_duration_s : float or None
@@ -87,6 +89,7 @@ class RecordSettings:
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)
     led_roi: tuple | None = None
+    exposure_s: float | None = None
     viewer: str = "none"
     max_duration_s: float | None = None
     min_free_bytes: int = 500 * 2**20
@@ -301,7 +304,7 @@ def _gopro_finish(settings: RecordSettings, before, out: Path, messages: list[st
             messages.append("the GoPro recorded no new video")
             return
         paths = gp.download_recording(new[-1], out / GOPRO_DIR, progress=not settings.quiet)
-        sync = attach_video(out, paths[0], led_roi=settings.led_roi)
+        sync = attach_video(out, paths[0], led_roi=settings.led_roi, exposure_s=settings.exposure_s)
         messages.append(f"GoPro video {paths[0].name}: {sync}")
     except Exception as exc:  # the event recording is safe; report the GoPro problem on one line
         messages.append(f"GoPro: {exc}")
@@ -354,6 +357,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gopro-serial", help="GoPro serial (its wired-USB address is derived from it)")
     ap.add_argument("--gopro-fps", type=int, default=240, help="GoPro frame rate (default 240)")
     ap.add_argument("--gopro-res", default="1080", help="GoPro resolution (default 1080)")
+    ap.add_argument("--exposure", type=float, metavar="S",
+                    help="GoPro shutter time in seconds when locked, e.g. 0.002 (default: estimated)")
     ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in GoPro pixels "
                                       "(default: found automatically)")
     ap.add_argument("--no-analysis", action="store_true", help="skip the offline analysis at the end")
@@ -385,6 +390,7 @@ def main(argv=None) -> int:
                                   quiet=args.quiet)
         if args.roi:
             settings.roi = parse_box(args.roi, "--roi", "X,Y,WIDTH,HEIGHT")
+        settings.exposure_s = args.exposure
         if args.led_roi:
             settings.led_roi = parse_box(args.led_roi, "--led-roi", "X0,Y0,X1,Y1")
         if args.fake:
