@@ -10,7 +10,7 @@ import numpy as np
 from spin.fast import estimate_fast
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
-from spin.search import by_time_to_reference, coarse_search, distinct_candidates
+from spin.search import coarse_search, distinct_candidates
 
 
 class SpinInputError(ValueError):
@@ -86,6 +86,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
                              f"{w}x{h}")
     if len(events) == 0:
         raise SpinInputError("events: empty array")
+    if np.any(np.diff(events["t"]) < 0):
+        events = events[np.argsort(events["t"], kind="stable")]
     t0 = int(events["t"][0]) if t0_us is None else int(t0_us)
     vx, vy = (float(c) for c in velocity_px_s)
     s = (events["t"] - t0).astype(np.float64) * 1e-6
@@ -191,7 +193,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
                           sensor_size=sensor_size)
         w0 = opts.pop("init_w_rad_s", None)
         if w0 is None:
-            omegas, dirs, scores = coarse_search(by_time_to_reference(ev), v0, omega_min_rad_s=2 * np.pi * 3.0,
+            omegas, dirs, scores = coarse_search(ev, v0, omega_min_rad_s=2 * np.pi * 3.0,
                                                  omega_max_rad_s=2 * np.pi * 1500.0)
             w0 = distinct_candidates(omegas, dirs, scores, 1)[0]
         res = estimate_paper(ev, w0, v0, **opts)

@@ -22,7 +22,7 @@ import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
-from spin.search import by_time_to_reference, coarse_search, distinct_candidates, events_for_span
+from spin.search import coarse_search, distinct_candidates, events_for_span
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
 # uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
@@ -84,7 +84,6 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
-    ev = by_time_to_reference(ev)
     omegas, directions, scores = coarse_search(
         ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)

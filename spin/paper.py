@@ -3,9 +3,12 @@
 Faithful settings: up to 50,000 events inside the circle, IWE at sensor
 resolution (1 IWE px per px, Gaussian sigma 1 px), variance objective, Adam with
 1,500 iterations over the unit axis ``n`` (renormalised), ``omega`` and ``v``
-jointly.  The paper does not describe a global initialisation; here it starts from
-the same coarse grid search as the fast method (:mod:`spin.search`), best point
-only, so both methods see the same start.
+jointly; events are rotated to the middle of the window (as in the fast method).
+The paper does not describe a global initialisation; here it starts from the same
+coarse grid search as the fast method (:mod:`spin.search`), best point only, so
+both methods see the same start.  On short windows (little rotation) the joint
+velocity trades off against rotation about in-image axes, which is what limits
+this method's axis accuracy in the benchmark.
 """
 
 from __future__ import annotations

@@ -24,22 +24,27 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
 
 
-def by_time_to_reference(ev: BallEvents) -> BallEvents:
-    """The events reordered by ``|tau|`` (nearest to ``t_ref`` first), as :func:`events_for_span` needs."""
-    return ev.take(np.argsort(np.abs(ev.tau_s), kind="stable"))
+def _span_bounds(ev: BallEvents, half_span_s):
+    """Index range(s) ``[lo, hi)`` of the time-sorted events with ``|tau| <= half_span_s``."""
+    neg_tau = -ev.tau_s  # ascending for time-sorted events
+    return (np.searchsorted(neg_tau, -np.asarray(half_span_s, dtype=neg_tau.dtype), side="left"),
+            np.searchsorted(neg_tau, np.asarray(half_span_s, dtype=neg_tau.dtype), side="right"))
 
 
 def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int) -> BallEvents:
     """At most ``n_events`` events around ``t_ref`` covering about ``span_rad`` of rotation.
 
-    ``ev`` must be ordered by :func:`by_time_to_reference`.  Takes the events with
-    ``|tau| <= span/(2 omega)``, evenly subsampled to ``n_events``; where that span
-    holds fewer, the ``n_events`` nearest to ``t_ref``.
+    ``ev`` must be time-sorted.  Takes the events with ``|tau| <= span/(2 omega)``
+    (a contiguous block), evenly subsampled to ``n_events``; where that span holds
+    fewer, the block of ``n_events`` centred on ``t_ref``.
     """
-    inside = int(np.searchsorted(np.abs(ev.tau_s), 0.5 * span_rad / max(omega_rad_s, 1e-9), side="right"))
-    if inside <= n_events:
-        return ev.take(slice(0, n_events))
-    return ev.take(np.linspace(0, inside - 1, n_events).astype(np.int64))
+    lo, hi = (int(b) for b in _span_bounds(ev, 0.5 * span_rad / max(omega_rad_s, 1e-9)))
+    if hi - lo <= n_events:
+        n = len(ev)
+        mid = int(np.searchsorted(-ev.tau_s, 0.0))
+        start = min(max(mid - n_events // 2, 0), max(n - n_events, 0))
+        return ev.take(slice(start, start + n_events))
+    return ev.take(np.linspace(lo, hi - 1, n_events).astype(np.int64))
 
 
 def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: IweGeometry) -> np.ndarray:
@@ -77,7 +82,7 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
                   hemispheres: bool = False):
-    """Score table over the (omega, direction) grid (``ev`` ordered by :func:`by_time_to_reference`).
+    """Score table over the (omega, direction) grid (``ev`` time-sorted).
 
     Rows whose rotation span covers the same events share the event subset.
 
@@ -93,10 +98,9 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
     directions = fibonacci_sphere(n_directions)
     geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres)
-    abs_tau = np.abs(ev.tau_s)
     # rows with at most n_events inside their span all use the n_events nearest to t_ref
-    inside = np.searchsorted(abs_tau, 0.5 * span_rad / omegas, side="right")
-    keys = np.maximum(inside, n_events)
+    lo, hi = _span_bounds(ev, 0.5 * span_rad / omegas)
+    keys = np.maximum(hi - lo, n_events)
     scores = np.empty((n_omega, n_directions))
     for key in np.unique(keys):
         rows = np.flatnonzero(keys == key)

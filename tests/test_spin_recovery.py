@@ -42,7 +42,9 @@ def test_fast_without_velocity_prior(ball):
     events, truth = ball
     est = spin.estimate_spin(events, truth["center"], truth["radius_px"])
     axis_deg, omega_rel = _errors(est, truth)
-    assert axis_deg < 3.0 and omega_rel < 0.03
+    # the centre motion is estimated too (rough): looser, and never fully confident
+    assert axis_deg < 5.0 and omega_rel < 0.05
+    assert est.confidence <= 0.5
 
 
 def test_paper_recovers_known_spin(ball):
