@@ -1,8 +1,8 @@
 """Offline replay speed as a multiple of real time, for sessions at 1, 5 and 20 Mev/s.
 
 One simulated ball flight (``sim.flight``, 1280x720, volleyball with spin) is
-topped up with background-activity noise to reach each event rate, stored as a
-session, and replayed (detection + spin, no ``.rrd``). Printed per rate: the
+brought to each event rate (a random subset of its events below its own rate,
+background-activity noise added above it), stored as a session, and replayed (detection + spin, no ``.rrd``). Printed per rate: the
 recording's duration, the replay's wall time, the multiple of real time
 (> 1: faster than real time) and the stages' shares, plus the peer figure in
 the same run: reading the events back from the store alone.
@@ -23,21 +23,24 @@ import numpy as np
 
 import sim
 from capture.events import concatenate
-from capture.replay import ReplayOptions, replay, spin_flight, track_session
+from capture.replay import ReplayOptions, _spin_unit, replay, spin_units, track_session
 from capture.session import create_session, open_session
 from sim.esim import noise_events
 
 
 def make_session(path: Path, rec, rate_ev_s: float, seed: int = 0) -> int:
-    """Store ``rec``'s events plus noise up to ``rate_ev_s``; returns the number of events."""
+    """Store ``rec``'s events brought to ``rate_ev_s``; returns the number of events."""
     t0, t1 = int(rec.events["t"][0]), int(rec.events["t"][-1]) + 1
     span_s = (t1 - t0) * 1e-6
-    missing = max(0.0, rate_ev_s * span_s - len(rec.events))
+    target = rate_ev_s * span_s
     rng = np.random.default_rng(seed)
-    rate_px = missing / (rec.width * rec.height * span_s)
-    noise, _ = noise_events(rec.width, rec.height, t0, t1, rng, rate_hz_per_px=rate_px)
-    events = concatenate([rec.events, noise])
-    events = events[np.argsort(events["t"], kind="stable")]
+    if target < len(rec.events):
+        events = rec.events[rng.random(len(rec.events)) < target / len(rec.events)]
+    else:
+        rate_px = (target - len(rec.events)) / (rec.width * rec.height * span_s)
+        noise, _ = noise_events(rec.width, rec.height, t0, t1, rng, rate_hz_per_px=rate_px)
+        events = concatenate([rec.events, noise])
+        events = events[np.argsort(events["t"], kind="stable")]
     with create_session(path, width=rec.width, height=rec.height) as w:
         for i in range(0, len(events), 1 << 20):
             w.append_events(events[i:i + (1 << 20)])
@@ -48,7 +51,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=0.4, help="flight duration, s")
     ap.add_argument("--rates", type=float, nargs="+", default=[1, 5, 20], help="Mev/s")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=ReplayOptions.workers)
     args = ap.parse_args()
     print(f"simulating a {args.duration:.2f} s flight ...", flush=True)
     rec = sim.flight(rps=30.0, axis=(0.0, 0.0, -1.0), duration_s=args.duration, seed=1)
@@ -71,11 +74,7 @@ def main() -> None:
             track = track_session(path, opts, progress=False)
             t_track = time.perf_counter() - t
             t = time.perf_counter()
-            n_win = 0
-            for f in track.flight_ids():
-                rows = track.select(track.flight == f)
-                cols = spin_flight(s.events(int(rows.t_us[0]), int(rows.t_us[-1]) + opts.window_us), rows, opts)
-                n_win += len(cols["rps"])
+            n_win = sum(len(_spin_unit(u)["rps"]) for u in spin_units(path, track, opts))
             t_spin = time.perf_counter() - t
             t = time.perf_counter()
             replay(path, options=opts, progress=False)

@@ -6,7 +6,9 @@ The work is split into independent units with plain inputs and outputs, so that
 a batch of sessions can later run on a distributed engine unchanged:
 
 - :func:`track_session` — one per session: session path in, :class:`~detect.track.Track` out;
-- :func:`spin_flight` — one per ball flight: events and track rows in, spin columns out;
+- :func:`spin_flight` — one per ball flight, or per part of one (a range of window start
+  times): events and track rows in, spin columns out; parts give the same windows as the
+  whole flight, so splitting only spreads the work;
 - :func:`replay` — drives both for one session and writes the results.
 """
 
@@ -21,10 +23,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+import spin
 from capture.frames import attach_video, iter_session_frames
 from capture.session import SPIN_FIELDS, SessionError, open_session, update_session
 from detect import BallTracker
-from detect.track import Track, spin_windows
+from detect.track import Track, spin_windows, window_starts_us
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -37,9 +40,13 @@ class ReplayOptions:
     Attributes
     ----------
     window_us : int
-        Spin window length, µs.
+        Shortest spin window, µs.
+    max_window_us : int
+        Longest spin window, µs: where the ball fires few events, a window is
+        lengthened up to this until it holds ``min_events``.
     step_us : int
-        Time between the starts of two spin windows, µs.
+        Time between the starts of two spin windows, µs (spin changes slowly in flight:
+        50 estimates per second of flight by default).
     min_events : int
         Fewest ball events for a spin window.
     max_events : int
@@ -47,15 +54,21 @@ class ReplayOptions:
     method : str
         Spin method, ``"fast"`` or ``"paper"``.
     workers : int
-        Processes for the per-flight units (1: in this process).
+        Processes for the spin units (1: in this process).
+    windows_per_unit : int
+        Spin windows per unit of work when flights are split across workers.
+    tracker : dict
+        Options of :class:`detect.BallTracker`.
     """
 
     window_us: int = 2000
-    step_us: int = 5000
+    max_window_us: int = 20000
+    step_us: int = 20000
     min_events: int = 1500
     max_events: int = 30000
     method: str = "fast"
-    workers: int = 1
+    workers: int = 2
+    windows_per_unit: int = 8
     tracker: dict = field(default_factory=dict)
 
 
@@ -78,35 +91,50 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     return tracker.finish()
 
 
-def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None) -> dict[str, np.ndarray]:
-    """Spin estimates of one ball flight.
+def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None,
+                starts_us=None) -> dict[str, np.ndarray]:
+    """Spin estimates of one ball flight (or of some of its windows).
 
     Parameters
     ----------
     events : ndarray of EVENT_DTYPE
-        Events covering the flight's time span.
+        Events covering the flight's time span (or the windows' span).
     track : Track
         The flight's track rows.
+    starts_us : array_like of int, optional
+        Start times of the windows to estimate, µs (default: all of the flight's).
 
     Returns
     -------
     dict
         Spin columns (``capture.session.SPIN_FIELDS``), one row per spin window.
     """
-    import spin  # heavy import kept inside the unit of work
-
     options = options or ReplayOptions()
+    if starts_us is not None:
+        starts_us = {int(track.flight[0]): np.asarray(starts_us, np.int64)}
     windows = spin_windows(events, track, window_us=options.window_us, step_us=options.step_us,
-                           min_events=options.min_events, max_events=options.max_events)
+                           min_events=options.min_events, max_events=options.max_events,
+                           max_window_us=options.max_window_us, starts_us=starts_us)
     return spin.to_columns(spin.estimate_windows(windows, method=options.method))
 
 
-def _flight_unit(args) -> dict[str, np.ndarray]:
-    session_path, track_columns, options = args
+def _spin_unit(args) -> dict[str, np.ndarray]:
+    """One unit of work with plain inputs: session path, a flight's track columns, window starts."""
+    session_path, track_columns, starts_us, options = args
     track = Track.from_columns(track_columns)
-    s = open_session(session_path)
-    events = s.events(int(track.t_us[0]), int(track.t_us[-1]) + options.window_us)
-    return spin_flight(events, track, options)
+    events = open_session(session_path).events(
+        int(starts_us[0]), int(starts_us[-1]) + max(options.window_us, options.max_window_us))
+    return spin_flight(events, track, options, starts_us)
+
+
+def spin_units(session_path, track: Track, options: ReplayOptions) -> list[tuple]:
+    """The spin work of a session as independent units (flight parts of ``windows_per_unit`` windows)."""
+    units = []
+    for flight, starts in window_starts_us(track, options.step_us).items():
+        columns = track.select(track.flight == flight).columns()
+        for i in range(0, len(starts), options.windows_per_unit):
+            units.append((str(session_path), columns, starts[i:i + options.windows_per_unit], options))
+    return units
 
 
 def _concat_columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -138,18 +166,17 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     """
     options = options or ReplayOptions()
     track = track_session(session_path, options, progress)
-    units = [(str(session_path), track.select(track.flight == f).columns(), options)
-             for f in track.flight_ids()]
-    bar = tqdm(total=len(units), unit="flight", desc="spin", disable=not progress, leave=False)
+    units = spin_units(session_path, track, options)
+    bar = tqdm(total=len(units), unit="part", desc="spin", disable=not progress, leave=False)
     parts = []
     if options.workers > 1 and len(units) > 1:
         with ProcessPoolExecutor(options.workers) as pool:
-            for part in pool.map(_flight_unit, units):
+            for part in pool.map(_spin_unit, units):
                 parts.append(part)
                 bar.update()
     else:
         for unit in units:
-            parts.append(_flight_unit(unit))
+            parts.append(_spin_unit(unit))
             bar.update()
     bar.close()
     spin_columns = _concat_columns(parts)
@@ -184,11 +211,14 @@ def main(argv=None) -> int:
     ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in video pixels (default: automatic)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
-    ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="spin window, µs")
+    ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
+    ap.add_argument("--max-window-us", type=int, default=ReplayOptions.max_window_us,
+                    help="longest spin window (for balls that fire few events), µs")
     ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
-    ap.add_argument("--workers", type=int, default=1, help="processes for per-flight spin estimation")
+    ap.add_argument("--workers", type=int, default=ReplayOptions.workers,
+                    help="processes for spin estimation")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     progress = not args.quiet
@@ -202,8 +232,8 @@ def main(argv=None) -> int:
             session_path = session_from_raw(src, out, args.mp4, progress, led_roi)
         else:
             session_path = src
-        opts = ReplayOptions(window_us=args.window_us, step_us=args.step_us, method=args.method,
-                             workers=args.workers)
+        opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
+                             step_us=args.step_us, method=args.method, workers=args.workers)
         result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     except (SessionError, RecorderError, OSError, ValueError) as exc:
         print(f"replay: error: {exc}", file=sys.stderr)

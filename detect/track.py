@@ -126,16 +126,29 @@ class SpinWindow:
     flight: int
 
 
+def window_starts_us(track: Track, step_us: int) -> dict[int, np.ndarray]:
+    """Default spin-window start times per flight: every ``step_us`` from the flight's first row, µs."""
+    out = {}
+    for flight in track.flight_ids():
+        t = track.t_us[track.flight == flight]
+        out[int(flight)] = np.arange(int(t[0]), int(t[-1]) + 1, step_us, dtype=np.int64)
+    return out
+
+
 def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, step_us: int | None = None,
-                 min_events: int = 2000, max_events: int | None = None,
-                 margin_px: float = 1.0) -> Iterator[SpinWindow]:
+                 min_events: int = 2000, max_events: int | None = None, max_window_us: int | None = None,
+                 margin_px: float = 1.0, starts_us: dict[int, np.ndarray] | None = None
+                 ) -> Iterator[SpinWindow]:
     """Cut ``events`` into spin windows along ``track``.
 
-    Each flight is covered by windows of ``window_us`` starting every ``step_us``
-    (default: ``window_us``, no overlap). A window keeps the events whose distance
-    to the moving centre ``c(t) = c0 + v (t - t0)`` is at most ``r + margin_px``;
-    windows with fewer than ``min_events`` such events are skipped, and at most
-    ``max_events`` (the first ones) are kept.
+    Each flight is covered by windows starting every ``step_us`` (default:
+    ``window_us``, no overlap). A window keeps the events whose distance to the
+    moving centre ``c(t) = c0 + v (t - t0)`` is at most ``r + margin_px``. A window
+    lasts ``window_us``; when it holds fewer than ``min_events`` such events and
+    ``max_window_us`` is given, it is lengthened (up to ``max_window_us``) until it
+    holds ``min_events`` — short windows where the ball fires many events, longer
+    ones where it fires few. Windows that still hold fewer than ``min_events`` are
+    skipped; at most ``max_events`` (the first ones) are kept.
 
     Parameters
     ----------
@@ -143,22 +156,29 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
         Time-sorted events.
     track : Track
         The ball track.
+    starts_us : dict, optional
+        Window start times (µs) per flight number, instead of every ``step_us``
+        (see :func:`window_starts_us`); lets a flight be split into independent parts.
     """
     step_us = window_us if step_us is None else step_us
-    for flight in track.flight_ids():
-        rows = track.select(track.flight == flight)
-        for t0 in range(int(rows.t_us[0]), int(rows.t_us[-1]) + 1, step_us):
-            t1 = t0 + window_us
-            win = time_slice(events, t0, t1)
+    longest = max(window_us, max_window_us or window_us)
+    starts_us = window_starts_us(track, step_us) if starts_us is None else starts_us
+    for flight, starts in starts_us.items():
+        for t0 in np.asarray(starts, np.int64).tolist():
+            win = time_slice(events, t0, t0 + longest)
             if len(win) < min_events:
                 continue
             cx, cy, r, vx, vy = track.at(t0, flight=int(flight))
             dt_s = (win["t"] - t0) * 1e-6
             dx = win["x"] - (cx + vx * dt_s)
             dy = win["y"] - (cy + vy * dt_s)
-            inside = win[dx * dx + dy * dy <= (r + margin_px) ** 2]
-            if max_events is not None:
-                inside = inside[:max_events]
+            inside = np.flatnonzero(dx * dx + dy * dy <= (r + margin_px) ** 2)
             if len(inside) < min_events:
                 continue
-            yield SpinWindow(t0, t1, inside, (cx, cy), r, (vx, vy), int(flight))
+            t1 = t0 + window_us
+            n_short = int(np.searchsorted(win["t"][inside], t1))
+            if n_short < min_events:  # lengthen up to the min_events-th ball event
+                t1 = int(win["t"][inside[min_events - 1]]) + 1
+                n_short = min_events
+            kept = win[inside[:n_short if max_events is None else min(n_short, max_events)]]
+            yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight))

@@ -42,3 +42,28 @@ def test_spin_windows_follow_the_moving_circle():
         assert abs(len(w.events) - on[(t >= w.t_start_us) & (t < w.t_end_us)].sum()) <= 2
         assert w.center[0] == pytest.approx(100 + 0.01 * w.t_start_us)
     assert list(spin_windows(ev, tr, window_us=2000, min_events=10**6)) == []
+
+
+def test_windows_lengthen_where_the_ball_fires_few_events():
+    tr = _track()
+    rng = np.random.default_rng(1)
+    # sparse ball: about 100 events per ms
+    t = np.sort(rng.integers(0, 10_000, 1000))
+    ang = rng.uniform(0, 2 * np.pi, len(t)); rad = 19 * np.sqrt(rng.random(len(t)))
+    ev = make_events(t, np.round(100 + 0.01 * t + rad * np.cos(ang)), np.round(50 + rad * np.sin(ang)), 1)
+    assert list(spin_windows(ev, tr, window_us=1000, step_us=2000, min_events=300)) == []
+    wins = list(spin_windows(ev, tr, window_us=1000, step_us=2000, min_events=300, max_window_us=5000))
+    assert len(wins) >= 3
+    for w in wins:
+        assert len(w.events) == 300  # just long enough for min_events
+        assert 1000 < w.t_end_us - w.t_start_us <= 5000
+        assert w.events["t"][-1] == w.t_end_us - 1
+    # explicit starts give the same windows as the default grid, so a flight can be split
+    from detect.track import window_starts_us
+
+    grid = window_starts_us(tr, 2000)[0]
+    parts = [list(spin_windows(ev, tr, window_us=1000, min_events=300, max_window_us=5000,
+                               starts_us={0: g})) for g in (grid[:2], grid[2:])]
+    joined = parts[0] + parts[1]
+    assert [w.t_start_us for w in joined] == [w.t_start_us for w in wins]
+    assert all(np.array_equal(a.events, b.events) for a, b in zip(joined, wins))
