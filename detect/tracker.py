@@ -39,6 +39,19 @@ from detect.track import Track
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""
 
+_REJECT_SKIP = 3
+"""Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
+
+
+def _iou(a, b) -> float:
+    """Intersection over union of two boxes ``(x0, y0, x1, y1)``."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return 0.0
+    inter = w * h
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
 
 class BallTracker:
     """Streaming ball tracker over an event stream and optional frames.
@@ -111,6 +124,7 @@ class BallTracker:
         self._misses = 0
         self._outliers = 0
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
+        self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
         self._done: list[tuple[int, CircleKalman, list[float]]] = []
         self._new_rows: list[tuple] = []
         self.frames_skipped = 0
@@ -253,13 +267,24 @@ class BallTracker:
     def _search_slice(self, t, x, y, m) -> None:
         best = None
         margin = 2 * self.cell_px
-        for x0, y0, x1, y1 in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
-                                              r_range=self.r_range):
+        rejected = []
+        for box in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
+                                   r_range=self.r_range):
+            # a cluster that was no ball in the last slices (a player...) is refitted only every
+            # few slices: the search then stays cheap while such a cluster is in view
+            skips = max((k for b, k in self._rejected if _iou(b, box) > 0.3), default=-1)
+            if 0 <= skips < _REJECT_SKIP:
+                rejected.append((box, skips + 1))
+                continue
+            x0, y0, x1, y1 = box
             sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
             ts, xs, ys = t[sel], x[sel], y[sel]
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
-            if fit is None or fit.score < self.min_score or (best is not None and fit.score <= best[0].score):
+            if fit is None or fit.score < self.min_score:
+                rejected.append((box, 0))
+                continue
+            if best is not None and fit.score <= best[0].score:
                 continue
             # a flight starts only on a ball (nearly) fully on the sensor: a partly visible one has a
             # moving centroid, so its velocity and compensation would be wrong
@@ -267,6 +292,7 @@ class BallTracker:
             if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
                     and fit.cy + inner <= self.height - 1):
                 best = (fit, v0, (ts, xs, ys))
+        self._rejected = rejected
         if best is None:
             if self._tentative and m - self._tentative[-1][0] > 2 * self.slice_us:
                 self._tentative = []
