@@ -39,6 +39,9 @@ from detect.track import Track
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""
 
+_HOT_EVERY = 4
+"""The hot-pixel map is refreshed from one block in this many (hot pixels persist)."""
+
 _REJECT_SKIP = 3
 """Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
 
@@ -84,7 +87,7 @@ class BallTracker:
     frame_sigma_px : float
         Standard deviation of a frame detection's centre, px.
     hot_pixels : bool
-        Remove hot pixels.
+        Remove hot pixels (the map is refreshed from every 4th block: hot pixels persist).
     smooth : bool
         Whether :meth:`finish` smooths the track (RTS); else it returns the filtered rows.
     """
@@ -184,7 +187,8 @@ class BallTracker:
         y = ev["y"].astype(np.int32)
         if self._hot is not None:
             pixel = y * self.width + x
-            self._hot.update(pixel)
+            if (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
+                self._hot.update(pixel)
             keep = self._hot.keep(pixel)
             x, y, t = x[keep], y[keep], t[keep]
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
