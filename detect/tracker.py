@@ -277,7 +277,10 @@ class BallTracker:
             # a cluster that was no ball in the last slices (a player...) is refitted only every
             # few slices: the search then stays cheap while such a cluster is in view
             skips = max((k for b, k in self._rejected if _iou(b, box) > 0.3), default=-1)
-            if 0 <= skips < _REJECT_SKIP:
+            edge = 2 * self.cell_px  # a ball coming in over the border is fitted every slice
+            at_border = (box[0] <= edge or box[1] <= edge or box[2] >= self.width - edge
+                         or box[3] >= self.height - edge)
+            if 0 <= skips < _REJECT_SKIP and not at_border:
                 rejected.append((box, skips + 1))
                 continue
             x0, y0, x1, y1 = box
