@@ -151,6 +151,17 @@ def main(argv=None):
     print(f"\nball-free noise + hot pixels ({len(ev) / 0.3 / 1e6:.1f} Mev/s input, 1280x720): "
           f"{len(tr_noise) / 0.3:.2f} false detections/s, speed {len(ev) / t_noise / 1e6:.2f} Mev/s "
           f"({len(ev) / t_noise / 1e7:.2f} x 10 Mev/s)")
+    # ball-free input with a walking player (the ball is parked off the sensor)
+    for w, h in sensors:
+        rec = sim.flight(radius_px=20, width=w, height=h, duration_s=0.1, start_px=(-1000.0, h / 2),
+                         velocity_px_s=(0.0, 0.0), gravity_px_s2=0.0, rps=0, distractors=("player",),
+                         noise_rate_hz=1.0, hot_pixels=30, seed=seed + 2)
+        t0 = time.process_time()
+        tr_p = track_ball(rec.events, width=w, height=h)
+        t_p = time.process_time() - t0
+        print(f"ball-free player + noise + hot pixels ({len(rec.events) / 0.1 / 1e6:.1f} Mev/s input, {w}x{h}): "
+              f"{len(tr_p) / 0.1:.2f} false detections/s, speed {len(rec.events) / t_p / 1e6:.2f} Mev/s, "
+              f"processing time / recorded time {t_p / 0.1:.2f}")
 
 
 if __name__ == "__main__":

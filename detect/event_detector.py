@@ -49,15 +49,18 @@ class CircleFit:
 
 
 def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Algebraic least-squares circle through points ``(x, y)`` -> ``(cx, cy, r)``."""
+    """Algebraic least-squares (Kasa) circle through points ``(x, y)`` -> ``(cx, cy, r)``."""
     mx, my = x.mean(), y.mean()
     u, v = x - mx, y - my
-    a = np.stack([u, v, np.ones_like(u)], axis=1)
-    b = u * u + v * v
-    sol = np.linalg.solve(a.T @ a + 1e-9 * np.eye(3), a.T @ b)
-    cx, cy = sol[0] / 2.0, sol[1] / 2.0
-    r2 = sol[2] + cx * cx + cy * cy
-    return float(cx + mx), float(cy + my), float(np.sqrt(max(r2, 0.0)))
+    suu, svv, suv = u @ u, v @ v, u @ v
+    z = u * u + v * v
+    suz, svz = u @ z, v @ z
+    det = suu * svv - suv * suv
+    if det <= 1e-12:
+        return float(mx), float(my), 0.0
+    a = 0.5 * (suz * svv - svz * suv) / det
+    b = 0.5 * (svz * suu - suz * suv) / det
+    return float(mx + a), float(my + b), float(np.sqrt(a * a + b * b + (suu + svv) / len(x)))
 
 
 def density_filter(x: np.ndarray, y: np.ndarray, *, min_neighbours: int = 2) -> np.ndarray:

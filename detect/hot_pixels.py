@@ -20,7 +20,7 @@ class HotPixelMap:
     width, height : int
         Sensor size, px.
     decay : float
-        Factor applied to the accumulated counts at each block (0..1).
+        Factor applied to the accumulated counts at each update (0..1).
     min_count : float
         Least accumulated count for a hot pixel.
     ratio : float

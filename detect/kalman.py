@@ -52,6 +52,7 @@ class CircleKalman:
         self.q = float(q_px_s3)
         self.q_r = float(q_r_px)
         self.t_us = int(t_us)
+        self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.x = np.array([z[0], z[1], velocity_px_s[0], velocity_px_s[1], gravity_px_s2[0],
                            gravity_px_s2[1], z[2]], dtype=np.float64)
         a_var = accel_sigma_px_s2 ** 2 if model == "ca" else 0.0
@@ -62,6 +63,8 @@ class CircleKalman:
             (self.t_us, self.x.copy(), self.P.copy(), np.eye(7), self.x.copy(), self.P.copy())]
 
     def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        if dt in self._cache:
+            return self._cache[dt]
         f = np.eye(7)
         q = np.zeros((7, 7))
         for i in (0, 1):
@@ -79,6 +82,8 @@ class CircleKalman:
                 idx = [p, v]
             q[np.ix_(idx, idx)] = blk
         q[6, 6] = self.q_r ** 2 * dt
+        if len(self._cache) < 64:
+            self._cache[dt] = (f, q)
         return f, q
 
     def predict(self, t_us: int) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,22 @@ from detect.track import Track
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""
 
+_HOT_EVERY = 4
+"""The hot-pixel map is refreshed from one block in this many (hot pixels persist)."""
+
+_REJECT_SKIP = 3
+"""Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
+
+
+def _iou(a, b) -> float:
+    """Intersection over union of two boxes ``(x0, y0, x1, y1)``."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return 0.0
+    inter = w * h
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
 
 class BallTracker:
     """Streaming ball tracker over an event stream and optional frames.
@@ -71,7 +87,7 @@ class BallTracker:
     frame_sigma_px : float
         Standard deviation of a frame detection's centre, px.
     hot_pixels : bool
-        Remove hot pixels.
+        Remove hot pixels (the map is refreshed from every 4th block: hot pixels persist).
     smooth : bool
         Whether :meth:`finish` smooths the track (RTS); else it returns the filtered rows.
     """
@@ -111,6 +127,7 @@ class BallTracker:
         self._misses = 0
         self._outliers = 0
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
+        self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
         self._done: list[tuple[int, CircleKalman, list[float]]] = []
         self._new_rows: list[tuple] = []
         self.frames_skipped = 0
@@ -170,7 +187,8 @@ class BallTracker:
         y = ev["y"].astype(np.int32)
         if self._hot is not None:
             pixel = y * self.width + x
-            self._hot.update(pixel)
+            if (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
+                self._hot.update(pixel)
             keep = self._hot.keep(pixel)
             x, y, t = x[keep], y[keep], t[keep]
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
@@ -253,13 +271,27 @@ class BallTracker:
     def _search_slice(self, t, x, y, m) -> None:
         best = None
         margin = 2 * self.cell_px
-        for x0, y0, x1, y1 in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
-                                              r_range=self.r_range):
+        rejected = []
+        for box in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
+                                   r_range=self.r_range):
+            # a cluster that was no ball in the last slices (a player...) is refitted only every
+            # few slices: the search then stays cheap while such a cluster is in view
+            skips = max((k for b, k in self._rejected if _iou(b, box) > 0.3), default=-1)
+            edge = 2 * self.cell_px  # a ball coming in over the border is fitted every slice
+            at_border = (box[0] <= edge or box[1] <= edge or box[2] >= self.width - edge
+                         or box[3] >= self.height - edge)
+            if 0 <= skips < _REJECT_SKIP and not at_border:
+                rejected.append((box, skips + 1))
+                continue
+            x0, y0, x1, y1 = box
             sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
             ts, xs, ys = t[sel], x[sel], y[sel]
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
-            if fit is None or fit.score < self.min_score or (best is not None and fit.score <= best[0].score):
+            if fit is None or fit.score < self.min_score:
+                rejected.append((box, 0))
+                continue
+            if best is not None and fit.score <= best[0].score:
                 continue
             # a flight starts only on a ball (nearly) fully on the sensor: a partly visible one has a
             # moving centroid, so its velocity and compensation would be wrong
@@ -267,6 +299,7 @@ class BallTracker:
             if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
                     and fit.cy + inner <= self.height - 1):
                 best = (fit, v0, (ts, xs, ys))
+        self._rejected = rejected
         if best is None:
             if self._tentative and m - self._tentative[-1][0] > 2 * self.slice_us:
                 self._tentative = []
