@@ -166,7 +166,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     """
     from capture import evk
     from capture.live import LiveAnalysis
-    from capture.review import LiveReview
+    from capture.review import LiveReview, ReviewError
 
     stop = stop or threading.Event()
     out = Path(settings.out)
@@ -197,9 +197,14 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                                 flush_interval_s=settings.flush_interval_s)
         review = None
         if settings.viewer != "none":
-            review = LiveReview(settings.viewer, width=info.width, height=info.height,
-                                name=out.name, frames=False)
-            if review.url:
+            try:
+                review = LiveReview(settings.viewer, width=info.width, height=info.height,
+                                    name=out.name, frames=False)
+            except ReviewError as exc:  # the recording matters more than the viewer
+                first_line = str(exc).strip().splitlines()[0]
+                messages.append(f"live viewer not started ({first_line}); recording without it")
+                _log(settings, messages[-1])
+            if review is not None and review.url:
                 _log(settings, f"Rerun viewer: {review.url}")
         live = LiveAnalysis(info.width, info.height, review=review)
         counters = {"events": 0, "triggers": 0, "drops": 0}
