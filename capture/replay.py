@@ -199,13 +199,14 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)
 
 
-def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True, led_roi=None) -> Path:
+def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True, led_roi=None,
+                     exposure_s: float | None = None) -> Path:
     """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session."""
     from capture.raw.cli import convert
 
     convert(raw_path, session_dir, progress=progress)
     if mp4_path is not None:
-        print(attach_video(session_dir, mp4_path, led_roi=led_roi))
+        print(attach_video(session_dir, mp4_path, led_roi=led_roi, exposure_s=exposure_s))
     return Path(session_dir)
 
 
@@ -217,6 +218,8 @@ def main(argv=None) -> int:
     ap.add_argument("source", help="session directory, or a Prophesee RAW file")
     ap.add_argument("--mp4", help="GoPro video to attach when SOURCE is a RAW file")
     ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in video pixels (default: automatic)")
+    ap.add_argument("--exposure", type=float, metavar="S",
+                    help="video shutter time in seconds when locked (default: estimated)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
     ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
@@ -237,7 +240,7 @@ def main(argv=None) -> int:
         if src.is_file():
             out = Path(args.out) if args.out else src.with_name(src.stem + "_session")
             led_roi = parse_box(args.led_roi, "--led-roi", "X0,Y0,X1,Y1") if args.led_roi else None
-            session_path = session_from_raw(src, out, args.mp4, progress, led_roi)
+            session_path = session_from_raw(src, out, args.mp4, progress, led_roi, args.exposure)
         else:
             session_path = src
         opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
