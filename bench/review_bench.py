@@ -1,6 +1,6 @@
 """Benchmark the Rerun review: offline ``write_rrd`` and the live logger.
 
-Run: ``python bench/bench_review.py [--seconds 1] [--rates 1,5,20]``
+Run: ``python bench/review_bench.py [--seconds 1] [--rates 1,5,20]``
 
 For sessions of ``--seconds`` of events at each rate (Mev/s), prints:
 - ``write_rrd`` wall time, as a multiple of real time, and against the peer
