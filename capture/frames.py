@@ -98,7 +98,8 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
     writer.close()
     sigma = float(np.sqrt(max(tm.cov[0, 0], 0.0)))
     return (f"{video.n_frames} frames at {float(video.fps):.2f} fps aligned by {tm.method}: "
-            f"offset {tm.offset_us / 1e6:+.6f} s, drift {tm.drift_ppm:+.1f} ppm, ±{sigma:.0f} µs")
+            f"video t=0 at event t={float(tm.to_event_us(0.0)) / 1e6:.6f} s, drift {tm.drift_ppm:+.1f} ppm, "
+            f"±{sigma:.0f} µs")
 
 
 def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int, np.ndarray]]:

@@ -78,6 +78,8 @@ class LiveAnalysis:
         """Queue a batch for analysis; skip it (and count it) if the analysis is behind."""
         if len(events) == 0:
             return
+        if self.error is not None:  # the analysis thread has stopped: nothing will take it
+            return
         try:
             self._queue.put_nowait(events)
         except queue.Full:
@@ -85,7 +87,11 @@ class LiveAnalysis:
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Stop the thread after the queued batches (waits at most ``timeout_s``)."""
-        self._queue.put(None)
+        if self._thread.is_alive():
+            try:
+                self._queue.put(None, timeout=timeout_s)
+            except queue.Full:  # the thread is stuck: leave it (daemon) rather than hang
+                return
         self._thread.join(timeout_s)
 
     def _run(self) -> None:

@@ -15,11 +15,13 @@ a batch of sessions can later run on a distributed engine unchanged:
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
@@ -129,9 +131,9 @@ def _spin_unit(args) -> dict[str, np.ndarray]:
 
 
 def _one_thread_per_worker() -> None:
-    """Worker processes already run in parallel: BLAS thread pools inside them only
-    oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this).
-    (OpenCV's pool is left alone: ``cv2.setNumThreads`` deadlocks in a forked child.)"""
+    """Worker processes already run in parallel: BLAS and OpenCV thread pools inside them only
+    oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this)."""
+    cv2.setNumThreads(1)
     threadpool_limits(1)
 
 
@@ -173,12 +175,21 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         Where to write the Rerun recording (none if ``None``).
     """
     options = options or ReplayOptions()
+    for name in ("window_us", "max_window_us", "step_us", "min_events", "max_events", "workers",
+                 "windows_per_unit"):
+        if getattr(options, name) <= 0:
+            raise ValueError(f"{name} must be positive, got {getattr(options, name)}")
+    if rrd_path is not None and Path(rrd_path).is_dir():
+        raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
     track = track_session(session_path, options, progress)
     units = spin_units(session_path, track, options)
     bar = tqdm(total=len(units), unit="part", desc="spin", disable=not progress, leave=False)
     parts = []
     if options.workers > 1 and len(units) > 1:
-        with ProcessPoolExecutor(options.workers, initializer=_one_thread_per_worker) as pool:
+        # forkserver: forking a process that has threads (OpenCV's pool, a viewer, servers) can
+        # deadlock the children
+        ctx = multiprocessing.get_context("forkserver")
+        with ProcessPoolExecutor(options.workers, mp_context=ctx, initializer=_one_thread_per_worker) as pool:
             for part in pool.map(_spin_unit, units):
                 parts.append(part)
                 bar.update()
@@ -211,6 +222,7 @@ def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True
 
 
 def main(argv=None) -> int:
+    from capture.review import ReviewError
     from capture.run import RecorderError, parse_box
 
     ap = argparse.ArgumentParser(prog="python -m capture.replay",
@@ -246,7 +258,7 @@ def main(argv=None) -> int:
         opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
                              step_us=args.step_us, method=args.method, workers=args.workers)
         result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
-    except (SessionError, RecorderError, OSError, ValueError) as exc:
+    except (SessionError, RecorderError, ReviewError, OSError, ValueError) as exc:
         print(f"replay: error: {exc}", file=sys.stderr)
         return 1
     n_flights = len(result.track.flight_ids())

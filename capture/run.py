@@ -111,15 +111,18 @@ class RecordResult:
     stop_reason: str
     replay: object | None = None
     messages: list = field(default_factory=list)
+    error: str | None = None
 
 
 class _Status(threading.Thread):
-    """Prints a status line every ``period_s`` and stops the recording when the disk is nearly full."""
+    """Every ``period_s``: prints a status line, commits the store if due (``flush``), and stops the
+    recording when the disk is nearly full."""
 
     def __init__(self, settings: RecordSettings, counters: dict, live, stop: threading.Event,
-                 period_s: float = 0.5):
+                 period_s: float = 0.5, flush=None):
         super().__init__(name="status", daemon=True)
         self.settings, self.counters, self.live, self.stop_event = settings, counters, live, stop
+        self.flush = flush
         self.period_s = period_s
         self.done = threading.Event()
         self.tty = sys.stderr.isatty()
@@ -133,7 +136,14 @@ class _Status(threading.Thread):
             n = self.counters["events"]
             rate = (n - last_n) / max(now - last_t, 1e-9)
             last_n, last_t = n, now
-            free = disk_free_bytes(self.settings.out)
+            if self.flush is not None:
+                self.flush()
+            try:
+                free = disk_free_bytes(self.settings.out)
+            except OSError as exc:  # the disk went away: stop rather than write into nothing
+                self.reason = f"cannot check the disk ({exc}): recording stopped"
+                self.stop_event.set()
+                continue
             if free < self.settings.min_free_bytes:
                 self.reason = f"disk almost full ({free / 2**20:.0f} MiB free): recording stopped"
                 self.stop_event.set()
@@ -162,9 +172,14 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     """Record one session from an EVK (real or fake) and optionally a GoPro.
 
     Returns when ``stop`` is set (Ctrl-C), ``max_duration_s`` passes, the disk is
-    nearly full, or a fake device's file ends. Everything received is kept.
+    nearly full, or a fake device's file ends. Whatever happens after the session
+    is created (a device unplugged mid-stream, a write error, a second Ctrl-C),
+    everything received is kept: the store is flushed and closed, the GoPro is
+    stopped and its video downloaded. A device failure is reported in
+    ``RecordResult.error``.
     """
     from capture import evk
+    from capture.evk.errors import EvkConnectionError
     from capture.live import LiveAnalysis
     from capture.review import LiveReview, ReviewError
 
@@ -178,6 +193,12 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
 
     camera = evk.open(settings.serial, backend=settings.backend)
     messages: list[str] = []
+    writer = live = review = gopro_media = stats = None
+    counters = {"events": 0, "triggers": 0, "drops": 0}
+    write_error: list[BaseException] = []
+    reason = "error"
+    device_error: str | None = None
+    lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
     try:
         info = camera.info
         if settings.biases:
@@ -195,7 +216,6 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                  "raw_file": RAW_NAME, **settings.attrs}
         writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
                                 flush_interval_s=settings.flush_interval_s)
-        review = None
         if settings.viewer != "none":
             try:
                 review = LiveReview(settings.viewer, width=info.width, height=info.height,
@@ -207,16 +227,15 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             if review is not None and review.url:
                 _log(settings, f"Rerun viewer: {review.url}")
         live = LiveAnalysis(info.width, info.height, review=review)
-        counters = {"events": 0, "triggers": 0, "drops": 0}
-        write_error: list[BaseException] = []
 
         def on_batch(events, triggers):
             if write_error:
                 return
             try:
-                writer.append_events(events)
-                if len(triggers):
-                    writer.append_triggers(triggers)
+                with lock:
+                    writer.append_events(events)
+                    if len(triggers):
+                        writer.append_triggers(triggers)
             except OSError as exc:  # disk full or gone: stop, keep what is committed
                 write_error.append(exc)
                 stop.set()
@@ -227,62 +246,85 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             if review is not None:
                 review.log_events(events)
 
-        gopro_media = None
         if settings.gopro is not None:
             gopro_media = _gopro_start(settings, messages)
-        status = _Status(settings, counters, live, stop)
+        status = _Status(settings, counters, live, stop, flush=lambda: _flush_if_due(writer, lock))
         status.start()
         _log(settings, f"Recording {info.board} {info.sensor} {info.width}x{info.height} "
                        f"(serial {info.serial}) into {out}; Ctrl-C stops")
         try:
             stats = evk.record(camera, out / RAW_NAME, on_batch=on_batch, stop=stop,
                                max_duration_s=settings.max_duration_s)
+            reason = stats.stop_reason
+        except EvkConnectionError as exc:  # unplugged, stalled...: keep and finalise everything
+            stats = getattr(exc, "stats", None)
+            device_error = f"{type(exc).__name__}: {exc}"
+            reason = "device error"
         finally:
             status.done.set()
             status.join()
-            writer.flush()
-        counters["drops"] = stats.overflows
-        reason = (status.reason or (f"write error: {write_error[0]}" if write_error else None)
-                  or stats.stop_reason)
+        reason = (status.reason or (f"write error: {write_error[0]}" if write_error else None) or reason)
         if write_error:
             messages.append(f"stopped on a write error ({write_error[0]}); everything before it is kept")
-        if stats.overflows:
-            messages.append(f"{stats.overflows} host-queue overflow(s): {stats.dropped_bytes} bytes lost "
-                            "(gaps listed in the session attrs)")
-        if stats.time_jumps:
-            messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
-                            "(lost data on the link, or idle periods)")
-        if stats.error:
-            messages.append(f"device: {stats.error}")
-        live.close()
-        if live.error is not None:
-            messages.append(f"live analysis stopped early: {live.error}")
-        if live.state.skipped_events:
-            messages.append(f"live analysis skipped {live.state.skipped_events} events to keep up "
-                            "(the offline analysis below covers everything)")
-        if review is not None:
-            review.close()
-        writer.set_attrs(recording={"stop_reason": reason, "overflows": int(stats.overflows),
-                                    "dropped_bytes": int(stats.dropped_bytes),
-                                    "gaps": [list(map(int, g)) for g in stats.gaps],
-                                    "time_jumps": int(stats.time_jumps),
-                                    "payload_bytes": int(stats.payload_bytes),
-                                    "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(
-                                        timespec="seconds")})
-        writer.close()
+        if device_error:
+            messages.append(f"the camera failed mid-recording ({device_error}); everything received "
+                            "before it is kept")
+        if stats is not None:
+            counters["drops"] = stats.overflows
+            if stats.overflows:
+                messages.append(f"{stats.overflows} host-queue overflow(s): {stats.dropped_bytes} bytes "
+                                "lost (gaps listed in the session attrs)")
+            if stats.time_jumps:
+                messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
+                                "(lost data on the link, or idle periods)")
     finally:
+        _finalise(writer, live, review, stats, reason, lock, messages)
         camera.close()
+        if gopro_media is not None:
+            _gopro_finish(settings, gopro_media, out, messages)
 
-    if settings.gopro is not None:
-        _gopro_finish(settings, gopro_media, out, messages)
     result = RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
-                          live.state.skipped_events, reason, messages=messages)
+                          live.state.skipped_events, reason, messages=messages, error=device_error)
     if settings.analyse and counters["events"]:
         from capture.replay import replay
 
         _log(settings, "Analysing the session (detection, spin, Rerun recording)...")
-        result.replay = replay(out, rrd_path=out / RRD_NAME, progress=not settings.quiet)
+        try:
+            result.replay = replay(out, rrd_path=out / RRD_NAME, progress=not settings.quiet)
+        except Exception as exc:  # the recording is safe; say why the analysis did not finish
+            messages.append(f"analysis failed ({type(exc).__name__}: {exc}); "
+                            f"retry with: python -m capture.replay {out}")
     return result
+
+
+def _flush_if_due(writer, lock: threading.Lock) -> None:
+    """Commit buffered events when the flush interval has passed (also while no data arrives)."""
+    with lock:
+        writer.flush_if_due()
+
+
+def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str]) -> None:
+    """Stop live analysis and viewer, then flush, describe and close the session store."""
+    if live is not None:
+        live.close()
+        if live.error is not None:
+            messages.append(f"live analysis stopped early: {live.error}")
+        elif live.state.skipped_events:
+            messages.append(f"live analysis skipped {live.state.skipped_events} events to keep up "
+                            "(the offline analysis covers everything)")
+    if review is not None:
+        review.close()
+    if writer is None:
+        return
+    recording = {"stop_reason": reason,
+                 "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+    if stats is not None:
+        recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
+                         gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
+                         payload_bytes=int(stats.payload_bytes))
+    with lock:
+        writer.set_attrs(recording=recording)
+        writer.close()
 
 
 def _gopro_start(settings: RecordSettings, messages: list[str]):
@@ -379,7 +421,7 @@ def main(argv=None) -> int:
     def on_sigint(signum, frame):
         if stop.is_set():
             raise KeyboardInterrupt
-        print("\nstopping (Ctrl-C again to abort)...", file=sys.stderr)
+        print("\nstopping: finishing the session (Ctrl-C again to abort)...", file=sys.stderr)
         stop.set()
 
     signal.signal(signal.SIGINT, on_sigint)
@@ -410,6 +452,10 @@ def main(argv=None) -> int:
             settings.gopro = GoPro(args.gopro_serial)
             settings.gopro_settings = {"resolution": args.gopro_res, "fps": args.gopro_fps}
         result = record_session(settings, stop)
+    except KeyboardInterrupt:
+        print(f"capture.run: aborted; what was committed is in {out} "
+              f"(python -m capture.replay {out} analyses it)", file=sys.stderr)
+        return 130
     except (RecorderError, SessionError, OSError, ValueError) as exc:
         print(f"capture.run: error: {exc}", file=sys.stderr)
         return 1
@@ -417,6 +463,9 @@ def main(argv=None) -> int:
         print(f"capture.run: error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     print_summary(result)
+    if result.error:
+        print(f"capture.run: error: {result.error} (session {out} kept)", file=sys.stderr)
+        return 1
     return 0
 
 

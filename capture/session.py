@@ -183,8 +183,7 @@ class SessionWriter:
         aligned = (self._events.n + self._buffered) // EVENT_CHUNK * EVENT_CHUNK
         if aligned > self._events.n:
             self._write_events(aligned - self._events.n)
-        if time.monotonic() - self._last_flush >= self.flush_interval_s:
-            self.flush()
+        self.flush_if_due()
 
     def _write_events(self, count: int) -> None:
         data = np.concatenate(self._buffer) if len(self._buffer) > 1 else self._buffer[0]
@@ -217,6 +216,11 @@ class SessionWriter:
         if triggers.dtype != TRIGGER_DTYPE:
             raise TypeError(f"triggers must have TRIGGER_DTYPE, got {triggers.dtype}")
         self._triggers.append({name: triggers[name] for name in _TRIGGER_COLUMNS})
+
+    def flush_if_due(self) -> None:
+        """Flush when ``flush_interval_s`` has passed since the last flush."""
+        if time.monotonic() - self._last_flush >= self.flush_interval_s:
+            self.flush()
 
     def flush(self) -> None:
         """Write and commit every buffered event."""
@@ -293,16 +297,19 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
     Parameters
     ----------
     path : str or Path
-        Session directory (must not exist unless ``overwrite``).
+        Session directory (must be empty; ``overwrite`` replaces an existing store and keeps the
+        directory's other files, such as the RAW byte stream and the videos).
     width, height : int
         Event sensor geometry in pixels.
     attrs : mapping, optional
         Extra root attributes (sensor model/serial/format/biases, frame camera, ...).
     """
     path = Path(path)
-    if path.exists() and any(path.iterdir()) and not overwrite:
-        raise SessionError(f"{path}: already exists and is not empty")
-    root = zarr.open_group(str(path), mode="w" if overwrite else "w-", zarr_format=3)
+    if path.exists() and any(path.iterdir()):
+        if not overwrite:
+            raise SessionError(f"{path}: already exists and is not empty")
+        _remove_store(path)
+    root = zarr.open_group(str(path), mode="a" if overwrite else "w-", zarr_format=3)
     root.attrs.update({
         "kind": SESSION_KIND,
         "schema_version": SCHEMA_VERSION,
@@ -314,6 +321,21 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
         **(dict(attrs) if attrs else {}),
     })
     return SessionWriter(root, path, flush_interval_s)
+
+
+_STORE_ENTRIES = ("zarr.json", "events", "index", "triggers", "frames", "track", "spin")
+
+
+def _remove_store(path: Path) -> None:
+    """Delete a session's Zarr entries, keeping the other files (the RAW stream, the videos)."""
+    import shutil
+
+    for name in _STORE_ENTRIES:
+        entry = path / name
+        if entry.is_dir():
+            shutil.rmtree(entry)
+        elif entry.exists():
+            entry.unlink()
 
 
 def update_session(path, flush_interval_s: float = 1.0) -> SessionWriter:
@@ -345,9 +367,10 @@ def _check_root(path: Path) -> zarr.Group:
 
 
 class Session:
-    """Read-only view of a session; sees data committed up to the time it was opened.
+    """Read-only view of a session.
 
-    Call :meth:`reload` to see what a live writer committed since.
+    Every read looks up the committed lengths anew, so a reader follows a live
+    writer's appends; :meth:`reload` refreshes the root attributes.
     """
 
     def __init__(self, path):
@@ -355,9 +378,9 @@ class Session:
         self.reload()
 
     def reload(self) -> None:
+        # Never through consolidated metadata: it is stale while a session is being written or
+        # updated, and the committed lengths are the truth.
         root = _check_root(self.path)
-        if root.attrs.get("closed"):
-            root = zarr.open_group(str(self.path), mode="r", use_consolidated=True)
         self.root = root
         self.attrs = dict(root.attrs)
         self.width = int(self.attrs["width"])
@@ -405,6 +428,7 @@ class Session:
                 lo = int(ms_to_idx[k_max - 1])
             if k + 1 < k_max:
                 hi = int(ms_to_idx[k + 1])
+            lo, hi = min(lo, n), min(hi, n)  # the index may be committed past our n
         if hi <= lo:
             return lo
         t = self.root["events"]["t"][lo:hi]

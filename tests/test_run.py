@@ -77,3 +77,36 @@ def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
     assert np.array_equal(s.events(), ref[:n])
     assert replay_main([str(out), "--quiet"]) == 0
     assert open_session(out).attrs["closed"]
+
+
+def test_camera_unplugged_mid_recording_finalises_everything(shared_raw_dir, tmp_path, capsys):
+    from capture.evk.fake import FakeEVK
+    from capture.gopro import FakeGoPro, GoPro, write_test_video
+    from capture.run import RecordSettings, print_summary, record_session
+
+    src = shared_raw_dir / TRIGGER_FILE
+    mp4 = write_test_video(tmp_path / "clip.mp4", [np.full((48, 64), v, np.uint8) for v in range(0, 200, 20)], 30)
+    with FakeGoPro(mp4) as fake:
+        settings = RecordSettings(out=tmp_path / "s", backend=FakeEVK(src, disconnect_after_bytes=300_000),
+                                  gopro=GoPro(host=fake.host, port=fake.port), analyse=False, quiet=True)
+        result = record_session(settings)
+        assert not fake.encoding  # the GoPro was stopped
+    assert result.error and "Disconnected" in result.error
+    s = open_session(tmp_path / "s")
+    assert s.attrs["closed"] and s.attrs["recording"]["stop_reason"] == "device error"
+    ref = raw.read(src).events
+    assert 0 < s.n_events < len(ref) and np.array_equal(s.events(), ref[:s.n_events])
+    assert len(list((tmp_path / "s" / "gopro").glob("*.MP4"))) == 1  # the video was downloaded
+    print_summary(result)
+    assert "failed mid-recording" in capsys.readouterr().out
+
+
+def test_replay_rejects_bad_options_on_one_line(shared_raw_dir, tmp_path, capsys):
+    out = tmp_path / "session"
+    assert run_main(["--fake", str(shared_raw_dir / TRIGGER_FILE), "--speed", "max", "--out", str(out),
+                     "--viewer", "none", "--no-analysis", "--quiet"]) == 0
+    for args in (["--rrd", str(tmp_path)], ["--step-us", "0"]):
+        capsys.readouterr()
+        assert replay_main([str(out), "--quiet", *args]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("replay: error:")

@@ -199,3 +199,29 @@ def test_writer_rejects_bad_input(tmp_path):
         w.append_events(make_events([4], [1], [1], [1]))
     with pytest.raises(S.SessionError, match="already exists"):
         S.create_session(tmp_path / "s", width=10, height=10)
+
+
+def test_overwrite_replaces_the_store_and_keeps_other_files(tmp_path):
+    with S.create_session(tmp_path / "s", width=10, height=10) as w:
+        w.append_events(make_events([1, 2], [1, 1], [1, 1], [1, 0]))
+    (tmp_path / "s" / "events.raw").write_bytes(b"raw bytes")
+    (tmp_path / "s" / "gopro").mkdir()
+    (tmp_path / "s" / "gopro" / "GX010001.MP4").write_bytes(b"video")
+    S.create_session(tmp_path / "s", width=20, height=20, overwrite=True).close()
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == 0 and s.width == 20
+    assert (tmp_path / "s" / "events.raw").read_bytes() == b"raw bytes"
+    assert (tmp_path / "s" / "gopro" / "GX010001.MP4").read_bytes() == b"video"
+
+
+def test_reader_of_a_closed_session_sees_later_updates(tmp_path):
+    track = {k: np.arange(5) for k in S.TRACK_FIELDS}
+    with S.create_session(tmp_path / "s", width=10, height=10) as w:
+        w.write_track(track)
+    r = S.open_session(tmp_path / "s")
+    assert len(r.track()["t_us"]) == 5
+    w = S.update_session(tmp_path / "s")
+    assert len(S.open_session(tmp_path / "s").track()["t_us"]) == 5  # readable while reopened
+    w.write_track({k: v[:2] + 100 for k, v in track.items()})
+    w.close()
+    assert list(r.track()["t_us"]) == [100, 101]
