@@ -189,6 +189,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         # forkserver: forking a process that has threads (OpenCV's pool, a viewer, servers) can
         # deadlock the children
         ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["capture.replay"])  # workers start with the imports done
         with ProcessPoolExecutor(options.workers, mp_context=ctx, initializer=_one_thread_per_worker) as pool:
             for part in pool.map(_spin_unit, units):
                 parts.append(part)
