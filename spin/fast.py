@@ -115,7 +115,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rv = False
         if last:
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
-        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=iterations)
+        # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
+        best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
+                        max_iterations=iterations if velocity_known else 3 * iterations)
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2 and rival is not None:
             rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
