@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, blur, iwe, lift_moving
-from spin.warp import rotation_coefficients
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -54,28 +53,36 @@ def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: 
     stacked small IWEs (enough at this resolution: the blur does the rest).
     """
     dt = np.float32
-    (px, py, pz), _, _ = lift_moving(ev, velocity_px_s)
-    px, py, pz = (c.astype(dt)[:, None] for c in (px, py, pz))
+    p, _, _ = lift_moving(ev, velocity_px_s)
+    pts = np.stack(p, axis=1).astype(dt)  # (N, 3)
     w = np.asarray(w_rad_s, dtype=np.float64)
     omega = np.linalg.norm(w, axis=1)
-    n = (w / np.maximum(omega, 1e-30)[:, None]).astype(dt)
-    nx, ny, nz = n[:, 0][None, :], n[:, 1][None, :], n[:, 2][None, :]
+    n = w / np.maximum(omega, 1e-30)[:, None]
     phi = ev.tau_s.astype(dt)[:, None] * omega.astype(dt)[None, :]
-    a, b = rotation_coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
-    big_a = a * phi
-    big_b = b * phi * phi
-    ndp = px * nx + py * ny + pz * nz
-    qx = px + big_a * (ny * pz - nz * py) + big_b * (nx * ndp - px)
-    qy = py + big_a * (nz * px - nx * pz) + big_b * (ny * ndp - py)
-    qz = pz + big_a * (nx * py - ny * px) + big_b * (nz * ndp - pz) if geometry.hemispheres else None
+    sin = np.sin(phi)
+    one_cos = 1 - np.cos(phi)
+    # q = p + sin(phi) n x p + (1 - cos(phi)) (n (n . p) - p): both terms are linear in p, so each
+    # component is (N, 3) @ (3, C) with the matrices of p -> n x p and p -> n (n . p) - p
+    zero = np.zeros_like(n[:, 0])
+    cross = (np.stack([zero, -n[:, 2], n[:, 1]]), np.stack([n[:, 2], zero, -n[:, 0]]),
+             np.stack([-n[:, 1], n[:, 0], zero]))
+    eye = np.eye(3)
+    comps = (0, 1, 2) if geometry.hemispheres else (0, 1)
+    mats = np.concatenate([m for k in comps for m in (cross[k], n.T * n[:, k][None, :] - eye[:, k:k + 1])],
+                          axis=1).astype(dt)
+    terms = pts @ mats  # (N, 2 C per component)
+    c = len(w)
+    q = [pts[:, k:k + 1] + sin * terms[:, 2 * i * c:(2 * i + 1) * c] + one_cos * terms[:, (2 * i + 1) * c:(2 * i + 2) * c]
+         for i, k in enumerate(comps)]
+    qx, qy, qz = q[0], q[1], (q[2] if geometry.hemispheres else None)
     u, v = geometry.to_iwe(qx, qy, qz)
     h, width = geometry.shape
-    c = len(w)
     idx = (v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32) + (np.arange(c) * (h * width))[None, :]
     wgt = np.broadcast_to(ev.weight.astype(np.float32)[:, None], idx.shape)
     img = np.bincount(idx.ravel(), wgt.ravel(), c * h * width).astype(np.float32)
     img = blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
-    return img.var(axis=1, dtype=np.float64)
+    mean = img.mean(axis=1, dtype=np.float64)
+    return np.einsum("ij,ij->i", img, img, dtype=np.float64) / img.shape[1] - mean * mean
 
 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
