@@ -165,7 +165,7 @@ def _axis_cross(n, a):
 
 
 def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
-             velocity_gradient: bool = True):
+             velocity_gradient: bool = True, lifted=None):
     """Variance of the IWE and, optionally, its gradient.
 
     All events turn about the same axis ``n = w / |w|`` by ``phi_k = |w| tau_k``, so the
@@ -180,6 +180,9 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     velocity_px_s : array (2,)
         Centre velocity (px/s).
     geometry : IweGeometry
+    lifted : tuple, optional
+        ``lift_moving(ev, velocity_px_s)`` when already computed (saves it on repeated calls
+        with the same velocity).
 
     Returns
     -------
@@ -188,7 +191,7 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
     dt = ev.tau_s.dtype.type
-    p, dzdx, dzdy = lift_moving(ev, velocity_px_s)
+    p, dzdx, dzdy = lift_moving(ev, velocity_px_s) if lifted is None else lifted
     w = np.asarray(w_rad_s, dtype=np.float64)
     omega = float(np.sqrt(np.dot(w, w)))
     n = tuple(dt(c) for c in (w / omega if omega > 0 else (0.0, 0.0, 1.0)))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from spin.objective import BallEvents, IweGeometry, contrast
+from spin.objective import BallEvents, IweGeometry, contrast, lift_moving
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     v_unit = geometry.sigma / (span_s * geometry.scale)
     n_params = 5 if refine_velocity else 3
     norm = None  # 1 / contrast at the start, set by the first evaluation
+    lifted = None if refine_velocity else lift_moving(ev, v0)  # fixed velocity: lift the events once
 
     def unpack(x):
         return w0 + x[:3] * w_unit, (v0 + x[3:5] * v_unit) if refine_velocity else v0
@@ -48,7 +49,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     def fun(x):
         nonlocal norm
         w, v = unpack(x)
-        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity)
+        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity, lifted=lifted)
         if norm is None:
             norm = 1.0 / max(val, 1e-30)
         g = -gw * w_unit * norm
