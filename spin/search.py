@@ -70,7 +70,8 @@ def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: 
     comps = (0, 1, 2) if geometry.hemispheres else (0, 1)
     mats = np.concatenate([m for k in comps for m in (cross[k], n.T * n[:, k][None, :] - eye[:, k:k + 1])],
                           axis=1).astype(dt)
-    terms = pts @ mats  # (N, 2 C per component)
+    # (N, 2 C per component); einsum, not BLAS (whose threads only slow this size down)
+    terms = np.einsum("nk,kc->nc", pts, mats)
     c = len(w)
     q = [pts[:, k:k + 1] + sin * terms[:, 2 * i * c:(2 * i + 1) * c] + one_cos * terms[:, (2 * i + 1) * c:(2 * i + 2) * c]
          for i, k in enumerate(comps)]
@@ -88,7 +89,7 @@ def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
-                  hemispheres: bool = False):
+                  hemispheres: bool = False, rows_per_call: int = 4):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
 
     Rows whose rotation span covers the same events share the event subset.
@@ -113,8 +114,10 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
         rows = np.flatnonzero(keys == key)
         sub = events_for_span(ev, float(omegas[rows[0]]), span_rad, n_events)
         still = float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64))
-        for i in rows:  # one row at a time: (events x directions) arrays stay in cache
-            scores[i] = score_vectors(sub, omegas[i] * directions, velocity_px_s, geometry) / max(still, 1e-30)
+        for k in range(0, len(rows), rows_per_call):  # a few rows at a time: the arrays stay in cache
+            part = rows[k:k + rows_per_call]
+            w = (omegas[part][:, None, None] * directions[None]).reshape(-1, 3)
+            scores[part] = (score_vectors(sub, w, velocity_px_s, geometry) / max(still, 1e-30)).reshape(len(part), -1)
     return omegas, directions, scores
 
 
