@@ -102,8 +102,8 @@ def bench_rally(seed: int) -> None:
     a, o, t, c, n = (np.array(x) for x in zip(*rows))
     ok = (a < 5) & (o < 5)
     trusted = c >= 0.5
-    print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, axis median {np.median(a):.2f} deg, "
-          f"omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, time/window mean "
+    print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, "
+          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, time/window mean "
           f"{1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
     print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
           f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
