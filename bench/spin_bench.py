@@ -12,6 +12,7 @@ Prints per row and method: median/mean axis error (deg), median/mean omega error
 speed ratio paper/fast measured on the same sequences in this run.
 
     python bench/spin_bench.py --quick          # a few minutes
+    python bench/spin_bench.py --rally          # replay-like windows only (r = 36 px, tracker velocity)
     python bench/spin_bench.py --seqs 10 --paper-seqs 1 --json out.json
 """
 
@@ -75,6 +76,39 @@ def summarise(rows):
             "success_pct": float(100.0 * ok.mean()), "time_s": float(np.mean(t)), "time_median_s": float(np.median(t))}
 
 
+RALLY_SPINS = [((0.0, 0.0, -1.0), 30.0), ((1.0, 0.0, 0.0), 60.0), ((0.3, -0.8, 0.5), 100.0), ((0.0, 1.0, 0.0), 15.0)]
+
+
+def rally_windows(seed: int):
+    """Spin windows as a replay cuts them: ``sim.rally`` flights (r = 36 px, ~4,500 px/s), truth track."""
+    from detect.track import spin_windows
+
+    for k, (axis, rps) in enumerate(RALLY_SPINS):
+        rec = sim.rally(seed=seed + k, rps=rps, axis=axis, duration_s=0.3, fps=None, sync=False)
+        truth = {"axis": np.asarray(axis) / np.linalg.norm(axis), "omega_rad_s": 2 * np.pi * rps}
+        for win in spin_windows(rec.events, rec.truth_track(), window_us=2000, step_us=20000, max_window_us=20000,
+                                min_events=1500, max_events=30000):
+            yield f"rally {rps:g}rps axis {axis}", win, truth
+
+
+def bench_rally(seed: int) -> None:
+    """Fast method on replay-like windows: errors, success, time per window, confidence of failures."""
+    rows = []
+    for name, win, truth in rally_windows(seed):
+        t = time.perf_counter()
+        est = spin.estimate_windows([win])[0]
+        dt = time.perf_counter() - t
+        rows.append((*errors(est.axis, est.omega_rad_s, truth), dt, est.confidence, len(win.events)))
+    a, o, t, c, n = (np.array(x) for x in zip(*rows))
+    ok = (a < 5) & (o < 5)
+    trusted = c >= 0.5
+    print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, "
+          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, time/window mean "
+          f"{1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
+    print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
+          f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small subset (a few minutes)")
@@ -86,7 +120,11 @@ def main(argv=None):
     ap.add_argument("--rows", default=None, help="comma-separated row indices (default: all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None, help="write the results here")
+    ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
     args = ap.parse_args(argv)
+    if args.rally:
+        bench_rally(args.seed)
+        return
     rows = QUICK_ROWS if args.quick else PAPER_ROWS + EXTRA_ROWS
     if args.rows:
         rows = [rows[int(i)] for i in args.rows.split(",")]

@@ -73,7 +73,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     """Select the events inside the moving circle and express them for warping.
 
     Returns the :class:`BallEvents` (float32; ``t_ref`` at the middle of the
-    selected events) and the selected raw events.  Raises :class:`SpinInputError` naming the problem.
+    selected events) and the selected events' times (int64 µs, (N,)).  Raises
+    :class:`SpinInputError` naming the problem.
     """
     events = _check_events(events)
     cx, cy = (float(c) for c in center)
@@ -90,9 +91,12 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
         events = events[np.argsort(events["t"], kind="stable")]
     t0 = int(events["t"][0]) if t0_us is None else int(t0_us)
     vx, vy = (float(c) for c in velocity_px_s)
-    s = (events["t"] - t0).astype(np.float64) * 1e-6
-    dx = events["x"].astype(np.float64) - cx - vx * s
-    dy = events["y"].astype(np.float64) - cy - vy * s
+    t_us = events["t"]
+    s = (t_us - t0).astype(np.float64) * 1e-6
+    x = events["x"].astype(np.float64) - cx
+    y = events["y"].astype(np.float64) - cy
+    dx = x - vx * s
+    dy = y - vy * s
     keep = dx * dx + dy * dy <= (rim_fraction * r) ** 2
     if not keep.any():
         raise SpinInputError(f"circle: no events inside the circle centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px")
@@ -101,12 +105,12 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
         idx = idx[:max_events]
     if len(idx) < min_events:
         raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
-    sel = events[idx]
     s = s[idx]
     t_ref = 0.5 * (s[0] + s[-1])
-    ball = BallEvents(events["x"][idx] - cx, events["y"][idx] - cy, s, t_ref - s,
-                      2.0 * sel["p"].astype(np.float64) - 1.0, r).astype(np.float32)
-    return ball, sel
+    # gathers from plain arrays (a structured-array gather costs as much as all the rest)
+    ball = BallEvents(x[idx], y[idx], s, t_ref - s, 2.0 * events["p"][idx].astype(np.float64) - 1.0,
+                      r).astype(np.float32)
+    return ball, t_us[idx]
 
 
 def velocity_from_centroids(events, center, radius_px: float, *, t0_us=None, n_slices: int = 8,
@@ -183,12 +187,12 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     else:
         v0 = np.asarray(velocity, dtype=np.float64).reshape(2)
     if method == "fast":
-        ev, sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
+        ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
                           max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size)
         res = estimate_fast(ev, v0, velocity_known=known, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
     else:
-        ev, sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
+        ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
                           max_events=opts.pop("max_events", PAPER_EVENTS), min_events=min_events,
                           sensor_size=sensor_size)
         w0 = opts.pop("init_w_rad_s", None)
@@ -204,7 +208,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
     return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
-                        t_start_us=int(sel["t"][0]), t_end_us=int(sel["t"][-1]) + 1, n_events=len(sel),
+                        t_start_us=int(t_sel[0]), t_end_us=int(t_sel[-1]) + 1, n_events=len(t_sel),
                         contrast=float(value), converged=bool(converged), confidence=float(confidence),
                         method=method)
 

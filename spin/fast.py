@@ -10,8 +10,9 @@
 3. Confidence: the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
    mirrored axis) on the second-last level's events, the agreement of the IWEs of
-   two halves of the events (structure rather than over-fitted noise), and the
-   motion the window covers (pixels travelled at the ball's equator).
+   two halves of the events (structure rather than over-fitted noise), the
+   motion the window covers (pixels travelled at the ball's equator) and how much of
+   the ball's rim fires at all (a ball partly outside the sensor or hidden).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ class FastResult:
     agreement: float
     margin: float
     coverage_px: float
+    disc_fill: float
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
@@ -61,6 +63,27 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
     a = a - a.mean()
     b = b - b.mean()
     return float(np.dot(a, b) / max(np.sqrt(np.dot(a, a) * np.dot(b, b)), 1e-30))
+
+
+def _disc_fill(ev: BallEvents, velocity_px_s, n_sectors: int = 16, max_events: int = 4000) -> float:
+    """Fraction of the ball's rim sectors that fire events (0..1).
+
+    Events between 0.4 r and the rim are binned by angle about the moving centre into
+    ``n_sectors``; a sector counts when it holds at least 15 % of the mean count.  A
+    ball partly outside the sensor or hidden behind something fires on one side only
+    (and the edge sweeping across it is a structure the warp can align: a confident
+    wrong spin), which this exposes.
+    """
+    ev = ev.take(slice(None, None, max(1, len(ev) // max_events)))
+    vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
+    dx = ev.x_px - vx * ev.s_s
+    dy = ev.y_px - vy * ev.s_s
+    ring = dx * dx + dy * dy >= (0.4 * ev.radius_px) ** 2
+    if not ring.any():
+        return 0.0
+    sector = ((np.arctan2(dy[ring], dx[ring]) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+    counts = np.bincount(sector, minlength=n_sectors)
+    return float(np.mean(counts >= 0.15 * counts.mean()))
 
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
@@ -115,7 +138,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rv = False
         if last:
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
-        best = maximise(sub, w, v, geometry(level), refine_velocity=rv, max_iterations=iterations)
+        # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
+        best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
+                        max_iterations=iterations if velocity_known else 3 * iterations)
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2 and rival is not None:
             rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
@@ -127,8 +152,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     final = geometry(levels[-1])
     agreement = _half_agreement(sub, w, v, final)
     coverage_px = float(np.linalg.norm(w)) * window_s * r
+    disc_fill = _disc_fill(ev, v)
     confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
-                       * np.clip(coverage_px / 3.0, 0, 1))
+                       * np.clip(coverage_px / 3.0, 0, 1) * np.clip((disc_fill - 0.45) / 0.2, 0, 1))
     if not velocity_known:
         # without a tracker velocity the centre motion is itself estimated (and errors in it bend
         # the axis): at most 0.5, less for in-image axes on windows short of a quarter turn, where
@@ -137,4 +163,4 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rotation_rad = float(np.linalg.norm(w)) * window_s
         confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
-                      agreement, margin, coverage_px)
+                      agreement, margin, coverage_px, disc_fill)

@@ -13,11 +13,12 @@ it gives ``d contrast / d w`` (``w = omega * axis``, rad/s) and ``d contrast / d
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
 
-from spin.warp import rotation_coefficients, cross, left_jacobian_transpose_apply, rotate
+from spin.warp import rotate
 
 
 @dataclass(frozen=True)
@@ -70,15 +71,15 @@ class IweGeometry:
     sigma: float = 1.0
     hemispheres: bool = False
 
-    @property
+    @cached_property
     def pad(self) -> int:
         return int(np.ceil(3.0 * self.sigma)) + 2
 
-    @property
+    @cached_property
     def size(self) -> int:
         return int(np.ceil(2.0 * self.radius_px * self.scale)) + 2 * self.pad + 1
 
-    @property
+    @cached_property
     def shape(self) -> tuple[int, int]:
         return (self.size, 2 * self.size if self.hemispheres else self.size)
 
@@ -99,8 +100,8 @@ def blur(image: np.ndarray, sigma: float) -> np.ndarray:
 
 def _corners(u, v, width, height):
     # points pushed off the raster (possible only for wild velocities) are held at its border
-    u = np.clip(u, 0.0, width - 1.001)
-    v = np.clip(v, 0.0, height - 1.001)
+    u = np.minimum(np.maximum(u, 0.0), width - 1.001)  # (np.clip costs more than both)
+    v = np.minimum(np.maximum(v, 0.0), height - 1.001)
     iu = np.floor(u)
     iv = np.floor(v)
     fu = (u - iu).astype(np.float32, copy=False)
@@ -112,13 +113,19 @@ def _corners(u, v, width, height):
 def vote(u, v, weight, shape) -> np.ndarray:
     """Bilinear voting of ``weight`` (N,) at IWE coordinates ``(u, v)`` (N,); float32 image of ``shape``."""
     h, w = shape
-    idx, fu, fv = _corners(u, v, w, h)
-    wgt = weight.astype(np.float32)
-    a = wgt * (1.0 - fv)
+    return _vote_corners(*_corners(u, v, w, h), weight, shape)
+
+
+def _vote_corners(idx, fu, fv, weight, shape) -> np.ndarray:
+    h, w = shape
+    wgt = weight.astype(np.float32, copy=False)
     b = wgt * fv
-    n = h * w
-    img = (np.bincount(idx, a * (1.0 - fu), n) + np.bincount(idx + 1, a * fu, n)
-           + np.bincount(idx + w, b * (1.0 - fu), n) + np.bincount(idx + w + 1, b * fu, n))
+    a = wgt - b
+    bu = b * fu
+    au = a * fu
+    # the four corners' votes in one pass
+    img = np.bincount(np.concatenate([idx, idx + 1, idx + w, idx + (w + 1)]),
+                      np.concatenate([a - au, au, b - bu, bu]), h * w)
     return img.astype(np.float32).reshape(h, w)
 
 
@@ -153,9 +160,18 @@ def iwe(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry) -> np.nda
     return blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
 
 
+def _axis_cross(n, a):
+    """``n x a`` for a constant vector ``n`` (3,) and a component tuple ``a`` of (N,) arrays."""
+    return (n[1] * a[2] - n[2] * a[1], n[2] * a[0] - n[0] * a[2], n[0] * a[1] - n[1] * a[0])
+
+
 def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
-             velocity_gradient: bool = True):
+             velocity_gradient: bool = True, lifted=None):
     """Variance of the IWE and, optionally, its gradient.
+
+    All events turn about the same axis ``n = w / |w|`` by ``phi_k = |w| tau_k``, so the
+    rotation is evaluated as ``q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p)`` and the
+    sums over events of the gradient factor through constant cross products with ``n``.
 
     Parameters
     ----------
@@ -165,6 +181,9 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     velocity_px_s : array (2,)
         Centre velocity (px/s).
     geometry : IweGeometry
+    lifted : tuple, optional
+        ``lift_moving(ev, velocity_px_s)`` when already computed (saves it on repeated calls
+        with the same velocity).
 
     Returns
     -------
@@ -172,34 +191,59 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     grad_w : ndarray (3,)  (only with ``gradient``)
     grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
-    dt = ev.tau_s.dtype
-    p, dzdx, dzdy = lift_moving(ev, velocity_px_s)
-    theta = tuple(ev.tau_s * dt.type(w_rad_s[i]) for i in range(3))
-    coef = rotation_coefficients(theta, gradient)
-    q = rotate(p, theta, coef)
+    dt = ev.tau_s.dtype.type
+    p, dzdx, dzdy = lift_moving(ev, velocity_px_s) if lifted is None else lifted
+    w = np.asarray(w_rad_s, dtype=np.float64)
+    omega = float(np.sqrt(np.dot(w, w)))
+    n = tuple(dt(c) for c in (w / omega if omega > 0 else (0.0, 0.0, 1.0)))
+    phi = ev.tau_s * dt(omega)
+    sin, one_cos = np.sin(phi), 1 - np.cos(phi)
+    nxp = _axis_cross(n, p)
+    nxnxp = _axis_cross(n, nxp)
+    q = tuple(p[i] + sin * nxp[i] + one_cos * nxnxp[i] for i in range(3))
     u, v = geometry.to_iwe(*q)
     h, width = geometry.shape
-    n = h * width
-    hs = blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
-    mean = float(hs.mean())
-    value = float(np.mean(np.square(hs - mean, dtype=np.float64)))
+    size = h * width
+    idx, fu, fv = _corners(u, v, width, h)
+    hs = blur(_vote_corners(idx, fu, fv, ev.weight, geometry.shape), geometry.sigma)
+    flat = hs.ravel().astype(np.float64)
+    mean = float(flat.sum()) / size
+    value = float(np.dot(flat, flat)) / size - mean * mean
     if not gradient:
         return value
-    g = blur(hs - mean, geometry.sigma).ravel() * (2.0 / n)
-    idx, fu, fv = _corners(u, v, width, h)
-    wgt = ev.weight.astype(np.float32)
+    g = blur(hs - mean, geometry.sigma).ravel() * (2.0 / size)
+    wgt = ev.weight.astype(np.float32, copy=False) * np.float32(geometry.scale)
     g00, g01, g10, g11 = g[idx], g[idx + 1], g[idx + width], g[idx + width + 1]
-    du = (wgt * geometry.scale) * ((1.0 - fv) * (g01 - g00) + fv * (g11 - g10))
-    dv = (wgt * geometry.scale) * ((1.0 - fu) * (g10 - g00) + fu * (g11 - g01))
-    zero = np.zeros_like(du)
-    gq = (du.astype(dt), dv.astype(dt), zero.astype(dt))
-    # d f / d theta_k = J_l^T (q_k x g_k); d f / d w = sum_k tau_k d f / d theta_k
-    dtheta = left_jacobian_transpose_apply(theta, cross(q, gq), coef)
-    grad_w = np.array([np.einsum("i,i->", ev.tau_s, dtheta[i]) for i in range(3)], dtype=np.float64)
+    d0 = g01 - g00
+    d1 = g11 - g10
+    du = (wgt * (d0 + fv * (d1 - d0))).astype(dt, copy=False)
+    e0 = g10 - g00
+    e1 = g11 - g01
+    dv = (wgt * (e0 + fu * (e1 - e0))).astype(dt, copy=False)
+    # d f / d theta_k = J_l(theta_k)^T a_k with a_k = q_k x (du, dv, 0) and theta_k = phi_k n:
+    # J_l^T a = a - (1 - cos)/phi n x a + (1 - sin/phi) n x (n x a); d theta_k / d w = tau_k (for the
+    # part along n; the same J_l form covers the perpendicular part), so
+    # d f / d w = A - n x B + n x (n x C) with A, B, C the tau-weighted sums below
+    a = (-q[2] * dv, q[2] * du, q[0] * dv - q[1] * du)
+    safe = phi + (phi == 0)  # b1 and c1 are 0 at phi = 0; float32 rounding near 0 is far below 1
+    b1 = one_cos / safe
+    c1 = (phi - sin) / safe
+    tb = ev.tau_s * b1
+    tc = ev.tau_s * c1
+    big_a = [float(np.dot(ev.tau_s, a[i])) for i in range(3)]
+    big_b = [float(np.dot(tb, a[i])) for i in range(3)]
+    big_c = [float(np.dot(tc, a[i])) for i in range(3)]
+    nn = tuple(float(c) for c in n)
+    nxb = _axis_cross(nn, big_b)
+    nxnxc = _axis_cross(nn, _axis_cross(nn, big_c))
+    grad_w = np.array([big_a[i] - nxb[i] + nxnxc[i] for i in range(3)])
     if not velocity_gradient:
         return value, grad_w, np.zeros(2)
-    # d f / d p_k = R_k^T g_k  (rotation by -theta); p depends on v through the centre offset
-    gp = rotate(gq, tuple(-t for t in theta), coef)
-    grad_v = np.array([-np.einsum("i,i->", ev.s_s, gp[0] + gp[2] * dzdx), -np.einsum("i,i->", ev.s_s, gp[1] + gp[2] * dzdy)],
+    # d f / d p_k = R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
+    gq = (du, dv, np.zeros_like(du))
+    nxg = _axis_cross(n, gq)
+    nxnxg = _axis_cross(n, nxg)
+    gp = tuple(gq[i] - sin * nxg[i] + one_cos * nxnxg[i] for i in range(3))
+    grad_v = np.array([-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)],
                       dtype=np.float64)
     return value, grad_w, grad_v

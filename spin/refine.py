@@ -6,8 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
+from threadpoolctl import ThreadpoolController
 
-from spin.objective import BallEvents, IweGeometry, contrast
+from spin.objective import BallEvents, IweGeometry, contrast, lift_moving
+
+
+# L-BFGS-B's few-parameter BLAS calls are ~50x slower with BLAS worker threads (each call wakes and
+# syncs them); a controller made once makes the per-call limit cheap (~10 µs)
+_BLAS = ThreadpoolController()
 
 
 @dataclass(frozen=True)
@@ -41,6 +47,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     v_unit = geometry.sigma / (span_s * geometry.scale)
     n_params = 5 if refine_velocity else 3
     norm = None  # 1 / contrast at the start, set by the first evaluation
+    lifted = None if refine_velocity else lift_moving(ev, v0)  # fixed velocity: lift the events once
 
     def unpack(x):
         return w0 + x[:3] * w_unit, (v0 + x[3:5] * v_unit) if refine_velocity else v0
@@ -48,7 +55,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     def fun(x):
         nonlocal norm
         w, v = unpack(x)
-        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity)
+        val, gw, gv = contrast(ev, w, v, geometry, velocity_gradient=refine_velocity, lifted=lifted)
         if norm is None:
             norm = 1.0 / max(val, 1e-30)
         g = -gw * w_unit * norm
@@ -56,8 +63,10 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
             g = np.concatenate([g, -gv * v_unit * norm])
         return -val * norm, g
 
-    res = minimize(fun, np.zeros(n_params), jac=True, method="L-BFGS-B",
-                   options={"maxiter": max_iterations, "maxfun": 2 * max_iterations, "gtol": 1e-5, "ftol": 1e-9})
+    with _BLAS.limit(limits=1, user_api="blas"):
+        res = minimize(fun, np.zeros(n_params), jac=True, method="L-BFGS-B",
+                       options={"maxiter": max_iterations, "maxfun": 2 * max_iterations, "gtol": 1e-5,
+                                "ftol": 1e-9})
     w, v = unpack(res.x)
     success = bool(res.success) or float(np.linalg.norm(res.jac)) < 1e-2
     return LocalMax(w, np.asarray(v, dtype=np.float64), float(-res.fun / norm), success, int(res.nfev))

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, blur, iwe, lift_moving
-from spin.warp import rotation_coefficients
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -47,41 +46,56 @@ def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_event
     return ev.take(np.linspace(lo, hi - 1, n_events).astype(np.int64))
 
 
-def score_vectors(ev: BallEvents, w_rad_s: np.ndarray, velocity_px_s, geometry: IweGeometry) -> np.ndarray:
-    """IWE variance for each angular velocity ``w`` (C, 3) rad/s, all on the same events; returns (C,).
+def score_rows(subsets: list[BallEvents], omegas_rad_s: np.ndarray, directions: np.ndarray, velocity_px_s,
+               geometry: IweGeometry) -> np.ndarray:
+    """IWE variance for angular velocities ``omega_r * direction_d``; returns (R, D).
 
-    Exact rotation broadcast over events x candidates, nearest-pixel voting into
-    stacked small IWEs (enough at this resolution: the blur does the rest).
+    Row ``r`` (speed ``omegas_rad_s[r]``) uses the events ``subsets[r]``; all subsets hold the
+    same number of events.  Exact rotation broadcast over events x rows x directions,
+    nearest-pixel voting into stacked small IWEs (enough at this resolution: the blur
+    does the rest).
     """
     dt = np.float32
-    (px, py, pz), _, _ = lift_moving(ev, velocity_px_s)
-    px, py, pz = (c.astype(dt)[:, None] for c in (px, py, pz))
-    w = np.asarray(w_rad_s, dtype=np.float64)
-    omega = np.linalg.norm(w, axis=1)
-    n = (w / np.maximum(omega, 1e-30)[:, None]).astype(dt)
-    nx, ny, nz = n[:, 0][None, :], n[:, 1][None, :], n[:, 2][None, :]
-    phi = ev.tau_s.astype(dt)[:, None] * omega.astype(dt)[None, :]
-    a, b = rotation_coefficients((phi, np.zeros_like(phi), np.zeros_like(phi)), False)
-    big_a = a * phi
-    big_b = b * phi * phi
-    ndp = px * nx + py * ny + pz * nz
-    qx = px + big_a * (ny * pz - nz * py) + big_b * (nx * ndp - px)
-    qy = py + big_a * (nz * px - nx * pz) + big_b * (ny * ndp - py)
-    qz = pz + big_a * (nx * py - ny * px) + big_b * (nz * ndp - pz) if geometry.hemispheres else None
+    pts = np.stack([np.stack(lift_moving(ev, velocity_px_s)[0], axis=1) for ev in subsets], axis=1).astype(dt)
+    tau = np.stack([ev.tau_s for ev in subsets], axis=1).astype(dt)  # (N, R)
+    n = np.asarray(directions, dtype=np.float64)
+    phi = tau[:, :, None] * np.asarray(omegas_rad_s, dtype=dt)[None, :, None]  # (N, R, D)
+    sin = np.sin(phi)
+    one_cos = 1 - np.cos(phi)
+    # q = p + sin(phi) n x p + (1 - cos(phi)) (n (n . p) - p): both terms are linear in p, so each
+    # component is p @ (3, D) with the matrices of p -> n x p and p -> n (n . p) - p
+    zero = np.zeros_like(n[:, 0])
+    cross = (np.stack([zero, -n[:, 2], n[:, 1]]), np.stack([n[:, 2], zero, -n[:, 0]]),
+             np.stack([-n[:, 1], n[:, 0], zero]))
+    eye = np.eye(3)
+    comps = (0, 1, 2) if geometry.hemispheres else (0, 1)
+    mats = np.concatenate([m for k in comps for m in (cross[k], n.T * n[:, k][None, :] - eye[:, k:k + 1])],
+                          axis=1).astype(dt)
+    # einsum, not BLAS (whose threads only slow this size down)
+    terms = np.einsum("nrk,kc->nrc", pts, mats)
+    d = len(n)
+    q = [pts[:, :, k:k + 1] + sin * terms[:, :, 2 * i * d:(2 * i + 1) * d]
+         + one_cos * terms[:, :, (2 * i + 1) * d:(2 * i + 2) * d] for i, k in enumerate(comps)]
+    qx, qy, qz = q[0], q[1], (q[2] if geometry.hemispheres else None)
     u, v = geometry.to_iwe(qx, qy, qz)
     h, width = geometry.shape
-    c = len(w)
-    idx = (v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32) + (np.arange(c) * (h * width))[None, :]
-    wgt = np.broadcast_to(ev.weight.astype(np.float32)[:, None], idx.shape)
+    r = len(subsets)
+    c = r * d
+    idx = ((v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32)
+           + (np.arange(c, dtype=np.int32) * (h * width)).reshape(1, r, d))
+    weight = np.stack([ev.weight for ev in subsets], axis=1).astype(np.float32)
+    wgt = np.broadcast_to(weight[:, :, None], idx.shape)
     img = np.bincount(idx.ravel(), wgt.ravel(), c * h * width).astype(np.float32)
     img = blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
-    return img.var(axis=1, dtype=np.float64)
+    mean = img.mean(axis=1, dtype=np.float64)
+    var = np.einsum("ij,ij->i", img, img, dtype=np.float64) / img.shape[1] - mean * mean
+    return var.reshape(r, d)
 
 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
-                  hemispheres: bool = False):
+                  hemispheres: bool = False, rows_per_call: int = 4):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
 
     Rows whose rotation span covers the same events share the event subset.
@@ -101,13 +115,16 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     # rows with at most n_events inside their span all use the n_events nearest to t_ref
     lo, hi = _span_bounds(ev, 0.5 * span_rad / omegas)
     keys = np.maximum(hi - lo, n_events)
-    scores = np.empty((n_omega, n_directions))
+    subsets, stills = {}, {}
     for key in np.unique(keys):
-        rows = np.flatnonzero(keys == key)
-        sub = events_for_span(ev, float(omegas[rows[0]]), span_rad, n_events)
-        still = float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64))
-        for i in rows:  # one row at a time: (events x directions) arrays stay in cache
-            scores[i] = score_vectors(sub, omegas[i] * directions, velocity_px_s, geometry) / max(still, 1e-30)
+        i = int(np.flatnonzero(keys == key)[0])
+        subsets[key] = sub = events_for_span(ev, float(omegas[i]), span_rad, n_events)
+        stills[key] = max(float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64)), 1e-30)
+    scores = np.empty((n_omega, n_directions))
+    for k in range(0, n_omega, rows_per_call):  # a few rows at a time: the arrays stay in cache
+        part = np.arange(k, min(k + rows_per_call, n_omega))
+        raw = score_rows([subsets[key] for key in keys[part]], omegas[part], directions, velocity_px_s, geometry)
+        scores[part] = raw / np.array([stills[key] for key in keys[part]])[:, None]
     return omegas, directions, scores
 
 

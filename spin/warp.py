@@ -45,39 +45,20 @@ def cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-def rotation_coefficients(theta, need_c: bool):
+def rotation_coefficients(theta):
+    """Rodrigues coefficients ``a = sin(phi)/phi`` and ``b = (1 - cos(phi))/phi^2`` of rotation vectors."""
     phi2 = theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]
     phi = np.sqrt(phi2)
     small = phi < 1e-2
     safe = np.where(small, 1.0, phi)
-    s, c = np.sin(safe), np.cos(safe)
-    a = np.where(small, 1.0 - phi2 / 6.0, s / safe)
-    b = np.where(small, 0.5 - phi2 / 24.0, (1.0 - c) / (safe * safe))
-    if not need_c:
-        return a, b
-    cc = np.where(small, 1.0 / 6.0 - phi2 / 120.0, (safe - s) / (safe * safe * safe))
-    return a, b, cc
+    a = np.where(small, 1.0 - phi2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - phi2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    return a, b
 
 
-def rotate(p, theta, coefficients=None):
-    """Rotate points ``p`` by rotation vectors ``theta`` (component tuples of (N,) arrays).
-
-    Returns the rotated components; ``coefficients`` may pass precomputed ``(a, b)``.
-    """
-    a, b = rotation_coefficients(theta, False) if coefficients is None else coefficients[:2]
+def rotate(p, theta):
+    """Rotate points ``p`` by rotation vectors ``theta`` (component tuples of (N,) arrays); returns the components."""
+    a, b = rotation_coefficients(theta)
     txp = cross(theta, p)
     txtxp = cross(theta, txp)
     return tuple(p[i] + a * txp[i] + b * txtxp[i] for i in range(3))
-
-
-def left_jacobian_transpose_apply(theta, vec, coefficients=None):
-    """``J_l(theta)^T a`` per event (component tuples of (N,) arrays).
-
-    ``J_l = I + b [theta]x + c [theta]x^2`` with ``b = (1-cos)/phi^2``,
-    ``c = (phi - sin)/phi^3``; it maps a change of the rotation vector to the
-    change of the rotated point: ``d(R p) = -[R p]x J_l d theta``.
-    """
-    _, b, c = rotation_coefficients(theta, True) if coefficients is None else coefficients
-    txa = cross(theta, vec)
-    txtxa = cross(theta, txa)
-    return tuple(vec[i] - b * txa[i] + c * txtxa[i] for i in range(3))
