@@ -61,7 +61,7 @@ def main() -> None:
           f"{'x real time':>11} {'windows':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         for rate in args.rates:
-            path = Path(tmp) / f"s{rate:g}"
+            path = Path(tmp) / f"s{len(list(Path(tmp).iterdir()))}"
             n = make_session(path, rec, rate * 1e6)
             s = open_session(path)
             duration_s = (int(s.events_range(n - 1, n)["t"][0]) - int(s.events_range(0, 1)["t"][0])) * 1e-6
