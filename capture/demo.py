@@ -11,6 +11,7 @@ estimated spin beside the truth.
 
 from __future__ import annotations
 
+import sys
 import tempfile
 import threading
 from pathlib import Path
@@ -86,4 +87,7 @@ def run_demo(out, *, viewer: str = "none", speed: str = "recorded", quiet: bool 
             print(f"Error:          {s['rps_error_pct']:.2f} % in rps, {s['axis_error_deg']:.2f} deg in axis")
         else:
             print(f"Estimated spin: no confident estimate in {s['n_windows']} windows")
+    if result.error:
+        print(f"capture.run: error: {result.error} (session {out} kept)", file=sys.stderr)
+        return 1
     return 0

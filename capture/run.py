@@ -424,7 +424,15 @@ def main(argv=None) -> int:
         print("\nstopping: finishing the session (Ctrl-C again to abort)...", file=sys.stderr)
         stop.set()
 
-    signal.signal(signal.SIGINT, on_sigint)
+    previous_handler = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        return _run(args, out, stop)
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+
+
+def _run(args, out: Path, stop: threading.Event) -> int:
+    """The body of :func:`main`: one session, errors as one line and an exit code."""
     try:
         if args.demo:
             from capture.demo import run_demo
