@@ -110,3 +110,30 @@ def test_replay_rejects_bad_options_on_one_line(shared_raw_dir, tmp_path, capsys
         assert replay_main([str(out), "--quiet", *args]) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("replay: error:")
+
+
+def test_ctrl_c_stops_cleanly(shared_raw_dir, tmp_path):
+    src = shared_raw_dir / TRIGGER_FILE
+    out = tmp_path / "session"
+    proc = subprocess.Popen([sys.executable, "-m", "capture.run", "--fake", str(src), "--out", str(out),
+                             "--viewer", "none", "--no-analysis", "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if open_session(out).n_events > 0:
+                break
+        except Exception:
+            pass
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    s = open_session(out)
+    assert s.attrs["closed"] and s.attrs["recording"]["stop_reason"] == "stop"
+    ref = raw.read(src).events
+    assert 0 < s.n_events < len(ref)
+    assert np.array_equal(s.events(), ref[:s.n_events])
+    # the RAW file holds at least every byte the store's events came from
+    assert np.array_equal(raw.read(out / "events.raw").events[:s.n_events], s.events())
+    assert "stopped: stop" in stdout
