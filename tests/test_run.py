@@ -52,14 +52,11 @@ def test_bad_arguments_give_one_line_errors(tmp_path, capsys):
     assert (tmp_path / "busy" / "x").read_text() == "keep me"
 
 
-def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
-    src = shared_raw_dir / TRIGGER_FILE
-    out = tmp_path / "session"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+def _recorder_with_first_commit(src, out, **popen_kw) -> subprocess.Popen:
+    """``python -m capture.run --fake SRC`` at the recorded pace, returned once the store holds events."""
     proc = subprocess.Popen([sys.executable, "-m", "capture.run", "--fake", str(src), "--out", str(out),
-                             "--viewer", "none", "--no-analysis", "--quiet"], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    # the file lasts 1.25 s at its recorded pace: kill in the middle
+                             "--viewer", "none", "--no-analysis", "--quiet"],
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"), **popen_kw)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         try:
@@ -68,6 +65,14 @@ def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
         except Exception:
             pass
         time.sleep(0.01)
+    return proc
+
+
+def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
+    src = shared_raw_dir / TRIGGER_FILE
+    out = tmp_path / "session"
+    # the file lasts 1.25 s at its recorded pace: kill in the middle
+    proc = _recorder_with_first_commit(src, out, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     s = open_session(out)
@@ -115,17 +120,7 @@ def test_replay_rejects_bad_options_on_one_line(shared_raw_dir, tmp_path, capsys
 def test_ctrl_c_stops_cleanly(shared_raw_dir, tmp_path):
     src = shared_raw_dir / TRIGGER_FILE
     out = tmp_path / "session"
-    proc = subprocess.Popen([sys.executable, "-m", "capture.run", "--fake", str(src), "--out", str(out),
-                             "--viewer", "none", "--no-analysis", "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            if open_session(out).n_events > 0:
-                break
-        except Exception:
-            pass
-        time.sleep(0.01)
+    proc = _recorder_with_first_commit(src, out, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
