@@ -5,19 +5,20 @@
 The work is split into independent units with plain inputs and outputs, so that
 a batch of sessions can later run on a distributed engine unchanged:
 
-- :func:`track_session` — one per session: session path in, :class:`~detect.track.Track` out;
+- :func:`iter_flights` — one per session: session path in, each ball :class:`Flight` (its
+  track rows and the events near the ball) out as soon as tracking has passed it;
 - :func:`spin_flight` — one per ball flight, or per part of one (a range of window start
   times): events and track rows in, spin columns out; parts give the same windows as the
   whole flight, so splitting only spreads the work;
-- :func:`replay` — drives both for one session and writes the results.
+- :func:`replay` — drives both for one session (spin of finished flights in worker
+  processes while tracking goes on) and writes the results.
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +28,9 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 import spin
+from capture.events import EVENT_DTYPE
 from capture.frames import attach_video, iter_session_frames
+from capture.workers import SharedWork
 from capture.session import SPIN_FIELDS, SessionError, open_session, update_session
 from detect import BallTracker
 from detect.track import Track, spin_windows, window_starts_us
@@ -57,7 +60,8 @@ class ReplayOptions:
     method : str
         Spin method, ``"fast"`` or ``"paper"``.
     workers : int
-        Processes for the spin units (1: in this process).
+        Processes for the spin units, this one included (1: all in this process); the
+        others start spin work while this one is still tracking.
     windows_per_unit : int
         Spin windows per unit of work when flights are split across workers.
     tracker : dict
@@ -75,23 +79,141 @@ class ReplayOptions:
     tracker: dict = field(default_factory=dict)
 
 
-def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True) -> Track:
-    """Detect and track the ball over a whole session, streaming the events in batches."""
+@dataclass
+class Flight:
+    """One ball flight as plain data, the input of its spin work.
+
+    Attributes
+    ----------
+    track : Track
+        The flight's track rows (smoothed).
+    events : ndarray of EVENT_DTYPE
+        Time-sorted events within reach of the ball from the flight's first row until the
+        longest spin window after its last: every event its spin windows can use.
+    """
+
+    track: Track
+    events: np.ndarray
+
+
+REACH_MARGIN = (1.25, 8.0)
+"""Events within ``1.25 r + 8 px`` of the ball (extrapolated from the last track row) are
+kept for spin: a wide superset of the ``r + 1 px`` circle of :func:`detect.track.spin_windows`,
+which covers the difference between the causal and the smoothed track."""
+
+
+def _near_ball(events: np.ndarray, rows: Track, longest_us: int) -> np.ndarray:
+    """Indices of ``events`` (time-sorted) that a spin window of ``rows``' flight may use.
+
+    An event counts when the flight's last row at or before it is at most
+    ``longest_us`` earlier and the event lies within :data:`REACH_MARGIN` of that
+    row's circle moved along its velocity. Row by row: a box around the ball's path
+    between two rows rejects most events with two integer comparisons.
+    """
+    t = events["t"]
+    ends = np.minimum(np.append(rows.t_us[1:], np.iinfo(np.int64).max), rows.t_us + longest_us)
+    bounds = np.searchsorted(t, np.stack([rows.t_us, ends]), side="left")
+    reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
+    keep = []
+    for k in np.flatnonzero(bounds[1] > bounds[0]).tolist():
+        lo, hi = int(bounds[0, k]), int(bounds[1, k])
+        span_s = (ends[k] - rows.t_us[k]) * 1e-6
+        x0, x1 = sorted((rows.cx[k], rows.cx[k] + rows.vx[k] * span_s))
+        y0, y1 = sorted((rows.cy[k], rows.cy[k] + rows.vy[k] * span_s))
+        x, y = events["x"][lo:hi], events["y"][lo:hi]
+        box = np.flatnonzero((x >= x0 - reach[k]) & (x <= x1 + reach[k]) & (y >= y0 - reach[k])
+                             & (y <= y1 + reach[k]))
+        dt_s = (t[lo:hi][box] - rows.t_us[k]) * 1e-6
+        dx = x[box] - (rows.cx[k] + rows.vx[k] * dt_s)
+        dy = y[box] - (rows.cy[k] + rows.vy[k] * dt_s)
+        keep.append(lo + box[dx * dx + dy * dy <= reach[k] * reach[k]])
+    return np.concatenate(keep) if keep else np.zeros(0, np.int64)
+
+
+def _concat_tracks(tracks: list[Track]) -> Track:
+    tracks = [t for t in tracks if len(t)]
+    if not tracks:
+        return Track.empty()
+    return Track(**{k: np.concatenate([t.columns()[k] for t in tracks]) for k in Track.empty().columns()})
+
+
+def iter_flights(session_path, options: ReplayOptions | None = None, progress: bool = True) -> Iterator[Flight]:
+    """Detect and track the ball over a session, streaming its events in batches.
+
+    Yields each flight, in order, as soon as it has ended and the events its spin windows
+    can use have been read (so that its spin work can start while tracking goes on).
+    Memory stays bounded: only events near the ball are kept, and those of a flight
+    only until it is yielded. The session's whole track is the flights' tracks in order.
+    """
     options = options or ReplayOptions()
+    longest_us = max(options.window_us, options.max_window_us)
     s = open_session(session_path)
     tracker = BallTracker(s.width, s.height, **options.tracker)
     frames = iter_session_frames(s, s.width, s.height)
     pending = next(frames, None)
+    rows: dict[int, Track] = {}  # per flight: causal rows while it lasts, smoothed ones once ended
+    ended: list[int] = []
+    near: dict[int, list[np.ndarray]] = {}
+    unread: list[np.ndarray] = []  # events not yet assigned to flights
+
+    def assign(before_us):
+        """Keep, per flight, the events near its ball among those before ``before_us`` (all: None)."""
+        while unread:
+            ev = unread[0]
+            k = len(ev) if before_us is None else int(np.searchsorted(ev["t"], before_us, side="left"))
+            if k == 0:
+                break
+            for fid, tr in rows.items():
+                idx = _near_ball(ev[:k], tr, longest_us)
+                if len(idx):
+                    near.setdefault(fid, []).append(ev[idx])
+            if k < len(ev):
+                unread[0] = ev[k:]
+                break
+            unread.pop(0)
+
+    def record_ended():
+        """Replace the causal rows of flights that ended by their smoothed ones."""
+        for tr in tracker.take_flights():
+            fid = int(tr.flight[0])
+            rows[fid] = tr
+            ended.append(fid)
+
+    def ready(assigned_before_us):
+        """Ended flights whose events are all assigned (all ended ones: None)."""
+        while ended and (assigned_before_us is None
+                         or rows[ended[0]].t_us[-1] + longest_us <= assigned_before_us):
+            fid = ended.pop(0)
+            parts = near.pop(fid, [])
+            yield Flight(rows.pop(fid), np.concatenate(parts) if parts else np.zeros(0, EVENT_DTYPE))
+
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
                leave=False)
     for batch in s.iter_events(BATCH_EVENTS):
-        while pending is not None and len(batch) and pending[0] <= batch["t"][-1]:
+        if not len(batch):
+            continue
+        while pending is not None and pending[0] <= batch["t"][-1]:
             tracker.update_frame(pending[1], pending[0])
             pending = next(frames, None)
-        tracker.update(batch)
+        new = tracker.update(batch)
+        for fid in np.unique(new.flight).tolist():
+            if fid in rows:
+                rows[fid] = _concat_tracks([rows[fid], new.select(new.flight == fid)])
+            else:
+                rows[fid] = new.select(new.flight == fid)
+        unread.append(batch)
+        record_ended()
+        final_before_us = tracker.rows_final_before_us
+        if final_before_us is not None:
+            assign(final_before_us)
+            yield from ready(final_before_us)
         bar.update(len(batch))
     bar.close()
-    return tracker.finish()
+    tracker.finish()
+    record_ended()
+    if unread:
+        assign(None)
+    yield from ready(None)
 
 
 def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None,
@@ -101,7 +223,8 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     Parameters
     ----------
     events : ndarray of EVENT_DTYPE
-        Events covering the flight's time span (or the windows' span).
+        Events covering the flight's time span (or the windows' span); events far from
+        the ball may be left out (see :class:`Flight`).
     track : Track
         The flight's track rows.
     starts_us : array_like of int, optional
@@ -122,12 +245,9 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
 
 
 def _spin_unit(args) -> dict[str, np.ndarray]:
-    """One unit of work with plain inputs: session path, a flight's track columns, window starts."""
-    session_path, track_columns, starts_us, options = args
-    track = Track.from_columns(track_columns)
-    events = open_session(session_path).events(
-        int(starts_us[0]), int(starts_us[-1]) + max(options.window_us, options.max_window_us))
-    return spin_flight(events, track, options, starts_us)
+    """One unit of work with plain inputs: events, a flight's track columns, window starts, options."""
+    events, track_columns, starts_us, options = args
+    return spin_flight(events, Track.from_columns(track_columns), options, starts_us)
 
 
 def _one_thread_per_worker() -> None:
@@ -137,13 +257,18 @@ def _one_thread_per_worker() -> None:
     threadpool_limits(1)
 
 
-def spin_units(session_path, track: Track, options: ReplayOptions) -> list[tuple]:
-    """The spin work of a session as independent units (flight parts of ``windows_per_unit`` windows)."""
+def spin_units(flight: Flight, options: ReplayOptions) -> list[tuple]:
+    """The spin work of a flight as independent units of ``windows_per_unit`` windows each,
+    ``(events, track_columns, starts_us, options)``."""
+    longest_us = max(options.window_us, options.max_window_us)
+    columns = flight.track.columns()
+    t = flight.events["t"]
     units = []
-    for flight, starts in window_starts_us(track, options.step_us).items():
-        columns = track.select(track.flight == flight).columns()
+    for starts in window_starts_us(flight.track, options.step_us).values():
         for i in range(0, len(starts), options.windows_per_unit):
-            units.append((str(session_path), columns, starts[i:i + options.windows_per_unit], options))
+            part = starts[i:i + options.windows_per_unit]
+            lo, hi = np.searchsorted(t, [part[0], part[-1] + longest_us], side="left")
+            units.append((flight.events[lo:hi], columns, part, options))
     return units
 
 
@@ -181,24 +306,17 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
             raise ValueError(f"{name} must be positive, got {getattr(options, name)}")
     if rrd_path is not None and Path(rrd_path).is_dir():
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
-    track = track_session(session_path, options, progress)
-    units = spin_units(session_path, track, options)
-    bar = tqdm(total=len(units), unit="part", desc="spin", disable=not progress, leave=False)
-    parts = []
-    if options.workers > 1 and len(units) > 1:
-        # forkserver: forking a process that has threads (OpenCV's pool, a viewer, servers) can
-        # deadlock the children
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["capture.replay"])  # workers start with the imports done
-        with ProcessPoolExecutor(options.workers, mp_context=ctx, initializer=_one_thread_per_worker) as pool:
-            for part in pool.map(_spin_unit, units):
-                parts.append(part)
-                bar.update()
-    else:
-        for unit in units:
-            parts.append(_spin_unit(unit))
-            bar.update()
-    bar.close()
+    tracks = []
+    # the spin of each flight starts in a worker as soon as tracking has passed it; once tracking
+    # is done, this process joins in
+    with SharedWork(_spin_unit, options.workers, preload=["capture.replay"],
+                    initializer=_one_thread_per_worker) as work:
+        for flight in iter_flights(session_path, options, progress):
+            tracks.append(flight.track)
+            for unit in spin_units(flight, options):
+                work.add(unit)
+        parts = work.results(progress, desc="spin")
+    track = _concat_tracks(tracks)
     spin_columns = _concat_columns(parts)
     writer = update_session(session_path)
     writer.write_track(track.columns())

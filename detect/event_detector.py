@@ -211,6 +211,8 @@ def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, ce
     lam = len(x) / (gw * gh)
     thr = lam + 4.0 * np.sqrt(lam) + 1.0
     binary = (sm > thr).astype(np.uint8)
+    if not binary.any():  # nothing dense (labelling an empty map costs ~0.4 ms)
+        return []
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
     if n <= 1:
         return []

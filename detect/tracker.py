@@ -129,6 +129,8 @@ class BallTracker:
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
         self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
         self._done: list[tuple[int, CircleKalman, list[float]]] = []
+        self._n_taken = 0
+        self._t_processed: int | None = None
         self._new_rows: list[tuple] = []
         self.frames_skipped = 0
         """Frames that came after the events of their time had been processed."""
@@ -162,6 +164,25 @@ class BallTracker:
         cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         return Track(**cols)
 
+    def take_flights(self) -> list[Track]:
+        """Flights that ended since the last call, each as its own track (smoothed unless
+        ``smooth=False``, as in :meth:`finish`); after :meth:`finish`, the last ones too."""
+        new = self._done[self._n_taken:]
+        self._n_taken = len(self._done)
+        return [Track(**self._flight_rows(fid, kf, scores)) for fid, kf, scores in new]
+
+    @property
+    def rows_final_before_us(self) -> int | None:
+        """Time (µs) before which no further track rows will be emitted, ``None`` before any
+        events were processed.
+
+        A flight's first rows are emitted when it is confirmed, up to ``confirm_slices``
+        detections (each at most two slices apart) after its first detection.
+        """
+        if self._t_processed is None:
+            return None
+        return self._t_processed - 2 * self.confirm_slices * self.slice_us
+
     # ------------------------------------------------------------------ blocks and slices
     def _run(self, final: bool) -> None:
         if not self._pending:
@@ -178,6 +199,7 @@ class BallTracker:
                 break
             j = int(np.searchsorted(t, b1, side="left"))
             self._process_block(ev[i:j], t[i:j], b0)
+            self._t_processed = b1
             i = j
         if i < len(ev):
             self._pending = [ev[i:]]

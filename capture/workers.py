@@ -1,0 +1,122 @@
+"""Independent units of work shared between worker processes and the calling process.
+
+The calling process usually has work of its own first (replay: tracking the ball),
+so :class:`SharedWork` starts ``workers - 1`` processes in the background, hands them
+units as they are added, and makes the caller join in once it asks for the results:
+the caller then runs queued units itself while the workers run others, so that
+``workers`` processes are busy in all, never more.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import threading
+import warnings
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+
+from tqdm import tqdm
+
+
+class SharedWork:
+    """Run ``fn(unit)`` for every unit added, in ``workers`` processes including the caller.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function (it is pickled by name for the worker processes).
+    workers : int
+        Processes in all; 1 runs everything in the calling process.
+    preload : sequence of str
+        Modules the worker processes import once before they start (forkserver preload).
+    initializer : callable, optional
+        Run in each worker process at its start.
+
+    Worker processes come from a forkserver (forking a process that has threads, as
+    Zarr's or OpenCV's, can deadlock the child); they are started in a background
+    thread so that adding units never waits for them. Use as a context manager.
+    """
+
+    def __init__(self, fn: Callable, workers: int, *, preload: Sequence[str] = (),
+                 initializer: Callable | None = None):
+        if workers < 1:
+            raise ValueError(f"workers must be positive, got {workers}")
+        self._fn = fn
+        self._n_pool = workers - 1
+        self._queue: deque = deque()
+        self._futures: dict[Future, int] = {}
+        self._results: dict[int, object] = {}
+        self._n_units = 0
+        self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+        self._closed = False
+        self._ready = threading.Event()
+        if self._n_pool:
+            threading.Thread(target=self._start, args=(list(preload), initializer), name="SharedWork-start").start()
+        else:
+            self._ready.set()
+
+    def _start(self, preload, initializer) -> None:
+        try:
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload(preload)
+            pool = ProcessPoolExecutor(self._n_pool, mp_context=ctx, initializer=initializer)
+            for f in [pool.submit(int) for _ in range(self._n_pool)]:  # the workers are up
+                f.result()
+        except (OSError, RuntimeError) as exc:  # no worker processes here: the caller does it all
+            warnings.warn(f"worker processes unavailable ({exc}); running in one process", RuntimeWarning)
+            pool = None
+        with self._lock:
+            if self._closed and pool is not None:
+                pool.shutdown(cancel_futures=True)
+            else:
+                self._pool = pool
+        self._ready.set()
+
+    def _feed(self) -> None:
+        """Collect finished units; keep each worker busy with one unit and one queued."""
+        for f in [f for f in self._futures if f.done()]:
+            self._results[self._futures.pop(f)] = f.result()
+        if self._pool is None or not self._ready.is_set():
+            return
+        while self._queue and len(self._futures) < self._n_pool + 1:
+            i, unit = self._queue.popleft()
+            self._futures[self._pool.submit(self._fn, unit)] = i
+
+    def add(self, unit) -> None:
+        """Queue one unit; a free worker process takes it up at once."""
+        self._queue.append((self._n_units, unit))
+        self._n_units += 1
+        self._feed()
+
+    def results(self, progress: bool = False, desc: str = "work") -> list:
+        """Run what is left (the caller takes part) and return every unit's result, in order added."""
+        bar = tqdm(total=self._n_units, initial=len(self._results), unit="unit", desc=desc,
+                   disable=not progress, leave=False)
+        while self._queue or self._futures:
+            before = len(self._results)
+            self._feed()
+            if self._queue:  # the workers take units from the front, the caller from the back
+                i, unit = self._queue.pop()
+                self._results[i] = self._fn(unit)
+            elif self._futures:
+                wait(list(self._futures), return_when=FIRST_COMPLETED)
+                self._feed()
+            bar.update(len(self._results) - before)
+        bar.close()
+        return [self._results[i] for i in range(self._n_units)]
+
+    def close(self) -> None:
+        """Stop the worker processes (cancelling queued units); does not wait for a pool still starting."""
+        with self._lock:
+            self._closed = True
+            pool = self._pool
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+
+    def __enter__(self) -> SharedWork:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
