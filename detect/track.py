@@ -180,5 +180,5 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
             if n_short < min_events:  # lengthen up to the min_events-th ball event
                 t1 = int(win["t"][inside[min_events - 1]]) + 1
                 n_short = int(np.searchsorted(win["t"][inside], t1))
-            kept = win[inside[:n_short if max_events is None else min(n_short, max_events)]]
+            kept = np.take(win, inside[:n_short if max_events is None else min(n_short, max_events)])
             yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight))
