@@ -263,8 +263,8 @@ class BallTracker:
         # a box around the swept circle first (cheap on all events), then the moving circle
         hx = reach + abs(vx) * self.slice_us * 0.5e-6
         hy = reach + abs(vy) * self.slice_us * 0.5e-6
-        box = (x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy)
-        t, x, y = t[box], x[box], y[box]
+        box = np.flatnonzero((x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy))
+        t, x, y = t.take(box), x.take(box), y.take(box)
         dt_s = (t - m) * 1e-6
         dx = x - vx * dt_s - cx
         dy = y - vy * dt_s - cy
