@@ -102,31 +102,43 @@ kept for spin: a wide superset of the ``r + 1 px`` circle of :func:`detect.track
 which covers the difference between the causal and the smoothed track."""
 
 
-def _near_ball(events: np.ndarray, rows: Track, longest_us: int) -> np.ndarray:
-    """Indices of ``events`` (time-sorted) that a spin window of ``rows``' flight may use.
+def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, longest_us: int,
+               group_us: int = 16000) -> np.ndarray:
+    """Indices of events ``(t_us, x, y)`` (time-sorted, contiguous) that a spin window of
+    ``rows``' flight may use.
 
     An event counts when the flight's last row at or before it is at most
     ``longest_us`` earlier and the event lies within :data:`REACH_MARGIN` of that
-    row's circle moved along its velocity. Row by row: a box around the ball's path
-    between two rows rejects most events with two integer comparisons.
+    row's circle moved along its velocity. Rows are taken in groups spanning about
+    ``group_us``: a box around the ball's path over the group rejects most events with
+    integer comparisons, the few left are tested exactly.
     """
-    t = events["t"]
-    ends = np.minimum(np.append(rows.t_us[1:], np.iinfo(np.int64).max), rows.t_us + longest_us)
-    bounds = np.searchsorted(t, np.stack([rows.t_us, ends]), side="left")
+    t_row = rows.t_us
+    ends = np.minimum(np.append(t_row[1:], np.iinfo(np.int64).max), t_row + longest_us)
     reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
+    span_s = (ends - t_row) * 1e-6
+    ex, ey = rows.cx + rows.vx * span_s, rows.cy + rows.vy * span_s  # centres at the rows' ends
+    x_lo = np.floor(np.minimum(rows.cx, ex) - reach)
+    x_hi = np.ceil(np.maximum(rows.cx, ex) + reach)
+    y_lo = np.floor(np.minimum(rows.cy, ey) - reach)
+    y_hi = np.ceil(np.maximum(rows.cy, ey) + reach)
+    # group boundaries: a new group every group_us of row time
+    starts = np.flatnonzero(np.diff((t_row - t_row[0]) // group_us, prepend=-1))
     keep = []
-    for k in np.flatnonzero(bounds[1] > bounds[0]).tolist():
-        lo, hi = int(bounds[0, k]), int(bounds[1, k])
-        span_s = (ends[k] - rows.t_us[k]) * 1e-6
-        x0, x1 = sorted((rows.cx[k], rows.cx[k] + rows.vx[k] * span_s))
-        y0, y1 = sorted((rows.cy[k], rows.cy[k] + rows.vy[k] * span_s))
-        x, y = events["x"][lo:hi], events["y"][lo:hi]
-        box = np.flatnonzero((x >= x0 - reach[k]) & (x <= x1 + reach[k]) & (y >= y0 - reach[k])
-                             & (y <= y1 + reach[k]))
-        dt_s = (t[lo:hi][box] - rows.t_us[k]) * 1e-6
-        dx = x[box] - (rows.cx[k] + rows.vx[k] * dt_s)
-        dy = y[box] - (rows.cy[k] + rows.vy[k] * dt_s)
-        keep.append(lo + box[dx * dx + dy * dy <= reach[k] * reach[k]])
+    for g0, g1 in zip(starts.tolist(), [*starts[1:].tolist(), len(rows)]):
+        lo, hi = np.searchsorted(t_us, [t_row[g0], ends[g1 - 1]], side="left").tolist()
+        if hi <= lo:
+            continue
+        xs, ys = x[lo:hi], y[lo:hi]
+        box = np.flatnonzero((xs >= max(0, int(x_lo[g0:g1].min()))) & (xs <= min(65535, int(x_hi[g0:g1].max())))
+                             & (ys >= max(0, int(y_lo[g0:g1].min()))) & (ys <= min(65535, int(y_hi[g0:g1].max()))))
+        tb = t_us[lo:hi].take(box)
+        i = g0 + np.searchsorted(t_row[g0:g1], tb, side="right") - 1
+        dt_s = (tb - t_row[i]) * 1e-6
+        dx = xs.take(box) - (rows.cx[i] + rows.vx[i] * dt_s)
+        dy = ys.take(box) - (rows.cy[i] + rows.vy[i] * dt_s)
+        ok = (dx * dx + dy * dy <= reach[i] * reach[i]) & (tb < ends[i])
+        keep.append(lo + box[ok])
     return np.concatenate(keep) if keep else np.zeros(0, np.int64)
 
 
@@ -163,8 +175,9 @@ def iter_flights(session_path, options: ReplayOptions | None = None, progress: b
             k = len(ev) if before_us is None else int(np.searchsorted(ev["t"], before_us, side="left"))
             if k == 0:
                 break
+            columns = [np.ascontiguousarray(ev[c][:k]) for c in ("t", "x", "y")]
             for fid, tr in rows.items():
-                idx = _near_ball(ev[:k], tr, longest_us)
+                idx = _near_ball(*columns, tr, longest_us)
                 if len(idx):
                     near.setdefault(fid, []).append(np.take(ev, idx))  # 10x faster than ev[idx] on records
             if k < len(ev):
@@ -189,7 +202,7 @@ def iter_flights(session_path, options: ReplayOptions | None = None, progress: b
 
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
                leave=False)
-    for batch in s.iter_events(BATCH_EVENTS):
+    for batch in s.iter_events(BATCH_EVENTS, prefetch=True):
         if not len(batch):
             continue
         while pending is not None and pending[0] <= batch["t"][-1]:

@@ -24,6 +24,7 @@ import json
 import os
 import time
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
@@ -440,11 +441,24 @@ class Session:
         i1 = self.n_events if t_end_us is None else self.event_index(int(t_end_us))
         return self.events_range(i0, i1)
 
-    def iter_events(self, batch: int = EVENT_CHUNK):
-        """Yield committed events in batches of at most ``batch`` (bounded memory)."""
+    def iter_events(self, batch: int = EVENT_CHUNK, prefetch: bool = False):
+        """Yield committed events in batches of at most ``batch`` (bounded memory).
+
+        With ``prefetch``, the next batch is read and decompressed in a background thread
+        while the caller works on the current one (two batches in memory).
+        """
         n = self.n_events
-        for i0 in range(0, n, batch):
-            yield self.events_range(i0, i0 + batch)
+        if not prefetch:
+            for i0 in range(0, n, batch):
+                yield self.events_range(i0, i0 + batch)
+            return
+        with ThreadPoolExecutor(1, thread_name_prefix="session-prefetch") as reader:
+            upcoming = reader.submit(self.events_range, 0, batch) if n else None
+            for i0 in range(0, n, batch):
+                current = upcoming.result()
+                if i0 + batch < n:
+                    upcoming = reader.submit(self.events_range, i0 + batch, i0 + 2 * batch)
+                yield current
 
     def triggers(self) -> np.ndarray:
         """All committed triggers (TRIGGER_DTYPE)."""
