@@ -27,7 +27,7 @@ import numpy as np
 
 import sim
 from capture.events import concatenate
-from capture.replay import ReplayOptions, _spin_unit, iter_flights, replay, spin_units
+from capture.replay import ReplayOptions, replay, spin_part, track_session
 from capture.session import create_session, open_session
 from sim.esim import noise_events
 
@@ -83,15 +83,16 @@ def main() -> None:
             t_read = time.perf_counter() - t
             opts = ReplayOptions(workers=args.workers)
             t = time.perf_counter()
-            flights = list(iter_flights(path, opts, progress=False))
+            parts = []
+            track = track_session(path, opts, progress=False, on_part=parts.append)
             t_track = time.perf_counter() - t
             t = time.perf_counter()
-            n_win = sum(len(_spin_unit(u)["rps"]) for f in flights for u in spin_units(f, opts))
+            n_win = sum(len(spin_part(p, opts)["rps"]) for p in parts)
             t_spin = time.perf_counter() - t
             t = time.perf_counter()
             replay(path, options=opts, progress=False)
             t_replay = time.perf_counter() - t
-            print(f"{rate:6g}M {n:11,} {duration_s:9.2f} {len(flights):7d} {t_read:9.2f}s {t_track:8.2f} {t_spin:8.2f} {t_replay:9.2f} "
+            print(f"{rate:6g}M {n:11,} {duration_s:9.2f} {len(track.flight_ids()):7d} {t_read:9.2f}s {t_track:8.2f} {t_spin:8.2f} {t_replay:9.2f} "
                   f"{duration_s / t_replay:10.2f}x {n_win:8d}", flush=True)
     print("read-only = reading the events back from the store (the floor any replay pays);")
     print("track/spin = the two stages run alone in one process; replay = the whole unit with "

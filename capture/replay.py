@@ -5,20 +5,20 @@
 The work is split into independent units with plain inputs and outputs, so that
 a batch of sessions can later run on a distributed engine unchanged:
 
-- :func:`iter_flights` — one per session: session path in, each ball :class:`Flight` (its
-  track rows and the events near the ball) out as soon as tracking has passed it;
-- :func:`spin_flight` — one per ball flight, or per part of one (a range of window start
-  times): events and track rows in, spin columns out; parts give the same windows as the
-  whole flight, so splitting only spreads the work;
-- :func:`replay` — drives both for one session (spin of finished flights in worker
-  processes while tracking goes on) and writes the results.
+- :func:`track_session` — one per session: session path in, the whole track out, and each
+  :class:`SpinPart` (some consecutive windows of a flight: their track rows and the events
+  near the ball) handed out as soon as tracking has passed it;
+- :func:`spin_part` — one per part: plain data in, spin columns out; a flight's parts give
+  the same windows as the whole flight (:func:`spin_flight`), so splitting only spreads
+  the work;
+- :func:`replay` — drives both for one session (spin parts in worker processes while
+  tracking goes on) and writes the results.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -80,18 +80,23 @@ class ReplayOptions:
 
 
 @dataclass
-class Flight:
-    """One ball flight as plain data, the input of its spin work.
+class SpinPart:
+    """Spin work for consecutive windows of one ball flight, as plain data.
 
     Attributes
     ----------
+    starts_us : ndarray of int64
+        Start times of the windows, µs (on the flight's grid: every ``step_us`` from its
+        first track row).
     track : Track
-        The flight's track rows (smoothed).
+        The flight's final track rows around them: from the last row at or before the
+        first start to the first row at or after the last start.
     events : ndarray of EVENT_DTYPE
-        Time-sorted events within reach of the ball from the flight's first row until the
-        longest spin window after its last: every event its spin windows can use.
+        Time-sorted events near the ball from the first start until the longest window
+        after the last: every event these windows can use.
     """
 
+    starts_us: np.ndarray
     track: Track
     events: np.ndarray
 
@@ -149,13 +154,64 @@ def _concat_tracks(tracks: list[Track]) -> Track:
     return Track(**{k: np.concatenate([t.columns()[k] for t in tracks]) for k in Track.empty().columns()})
 
 
-def iter_flights(session_path, options: ReplayOptions | None = None, progress: bool = True) -> Iterator[Flight]:
+@dataclass
+class _OpenFlight:
+    """What :func:`track_session` keeps of a flight until all its spin parts are out."""
+
+    causal: Track  # rows as tracked (for keeping the events near the ball)
+    final: Track  # final rows from the one bracketing ``next_start_us`` on
+    next_start_us: int  # first window start not handed out yet
+    near: list  # events near the ball from ``next_start_us`` on
+    ended: bool = False
+
+
+def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before_us, on_part) -> None:
+    """Hand out the flight's parts whose windows have final track rows and all their events
+    (``assigned_before_us``: events before it are assigned; None: all)."""
+    longest_us = max(options.window_us, options.max_window_us)
+    while len(flight.final):
+        limit = int(flight.final.t_us[-1])  # windows start on or before the last final row
+        starts = np.arange(flight.next_start_us, limit + 1, options.step_us, dtype=np.int64)
+        starts = starts[:options.windows_per_unit]
+        if not len(starts) or (len(starts) < options.windows_per_unit and not flight.ended):
+            return
+        if assigned_before_us is not None and starts[-1] + longest_us > assigned_before_us:
+            return
+        events = np.concatenate(flight.near) if len(flight.near) > 1 else (
+            flight.near[0] if flight.near else np.zeros(0, EVENT_DTYPE))
+        t = events["t"]
+        lo, hi = np.searchsorted(t, [starts[0], starts[-1] + longest_us], side="left")
+        rows = flight.final
+        i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
+        i1 = int(np.searchsorted(rows.t_us, starts[-1], side="left")) + 1
+        on_part(SpinPart(starts, rows.select(slice(i0, i1)), events[lo:hi]))
+        flight.next_start_us = int(starts[-1]) + options.step_us
+        keep = int(np.searchsorted(t, flight.next_start_us, side="left"))
+        flight.near = [events[keep:]] if keep < len(events) else []
+        flight.final = rows.select(slice(max(0, int(np.searchsorted(rows.t_us, flight.next_start_us,
+                                                                     side="right")) - 1), None))
+
+
+def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
+                  on_part=None) -> Track:
     """Detect and track the ball over a session, streaming its events in batches.
 
-    Yields each flight, in order, as soon as it has ended and the events its spin windows
-    can use have been read (so that its spin work can start while tracking goes on).
-    Memory stays bounded: only events near the ball are kept, and those of a flight
-    only until it is yielded. The session's whole track is the flights' tracks in order.
+    Parameters
+    ----------
+    session_path : path
+        Session directory.
+    on_part : callable, optional
+        Called with each :class:`SpinPart` as soon as its windows have final track rows and
+        all their events have been read, while tracking goes on; every window of every
+        flight is in exactly one part, in order within a flight.
+
+    Returns
+    -------
+    Track
+        The whole track (as ``BallTracker.finish``).
+
+    Memory stays bounded: of the events read, only those near the ball are kept, and only
+    until their windows are handed out.
     """
     options = options or ReplayOptions()
     longest_us = max(options.window_us, options.max_window_us)
@@ -163,10 +219,24 @@ def iter_flights(session_path, options: ReplayOptions | None = None, progress: b
     tracker = BallTracker(s.width, s.height, **options.tracker)
     frames = iter_session_frames(s, s.width, s.height)
     pending = next(frames, None)
-    rows: dict[int, Track] = {}  # per flight: causal rows while it lasts, smoothed ones once ended
-    ended: list[int] = []
-    near: dict[int, list[np.ndarray]] = {}
+    flights: dict[int, _OpenFlight] = {}
     unread: list[np.ndarray] = []  # events not yet assigned to flights
+
+    newest = [-1]  # the highest flight number seen
+
+    def take_rows(causal: Track, final: Track):
+        """Add the tracker's new causal rows (for keeping events near the ball) and final rows."""
+        for fid in np.unique(causal.flight).tolist():
+            rows = causal.select(causal.flight == fid)
+            if fid in flights:
+                flights[fid].causal = _concat_tracks([flights[fid].causal, rows])
+            elif fid > newest[0]:
+                flights[fid] = _OpenFlight(rows, Track.empty(), int(rows.t_us[0]), [])
+            newest[0] = max(newest[0], fid)
+        for fid in np.unique(final.flight).tolist():
+            flights[fid].final = _concat_tracks([flights[fid].final, final.select(final.flight == fid)])
+        for fid, fl in flights.items():
+            fl.ended = fid != tracker.active_flight
 
     def assign(before_us):
         """Keep, per flight, the events near its ball among those before ``before_us`` (all: None)."""
@@ -176,29 +246,23 @@ def iter_flights(session_path, options: ReplayOptions | None = None, progress: b
             if k == 0:
                 break
             columns = [np.ascontiguousarray(ev[c][:k]) for c in ("t", "x", "y")]
-            for fid, tr in rows.items():
-                idx = _near_ball(*columns, tr, longest_us)
+            for fl in flights.values():
+                idx = _near_ball(*columns, fl.causal, longest_us)
                 if len(idx):
-                    near.setdefault(fid, []).append(np.take(ev, idx))  # 10x faster than ev[idx] on records
+                    fl.near.append(np.take(ev, idx))  # 10x faster than ev[idx] on records
             if k < len(ev):
                 unread[0] = ev[k:]
                 break
             unread.pop(0)
 
-    def record_ended():
-        """Replace the causal rows of flights that ended by their smoothed ones."""
-        for tr in tracker.take_flights():
-            fid = int(tr.flight[0])
-            rows[fid] = tr
-            ended.append(fid)
-
-    def ready(assigned_before_us):
-        """Ended flights whose events are all assigned (all ended ones: None)."""
-        while ended and (assigned_before_us is None
-                         or rows[ended[0]].t_us[-1] + longest_us <= assigned_before_us):
-            fid = ended.pop(0)
-            parts = near.pop(fid, [])
-            yield Flight(rows.pop(fid), np.concatenate(parts) if parts else np.zeros(0, EVENT_DTYPE))
+    def hand_out(assigned_before_us):
+        for fid in list(flights):
+            fl = flights[fid]
+            if on_part is not None:
+                _hand_out_parts(fl, options, assigned_before_us, on_part)
+            done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
+            if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
+                del flights[fid]
 
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
                leave=False)
@@ -208,25 +272,23 @@ def iter_flights(session_path, options: ReplayOptions | None = None, progress: b
         while pending is not None and pending[0] <= batch["t"][-1]:
             tracker.update_frame(pending[1], pending[0])
             pending = next(frames, None)
-        new = tracker.update(batch)
-        for fid in np.unique(new.flight).tolist():
-            if fid in rows:
-                rows[fid] = _concat_tracks([rows[fid], new.select(new.flight == fid)])
-            else:
-                rows[fid] = new.select(new.flight == fid)
+        take_rows(tracker.update(batch), tracker.take_final())
         unread.append(batch)
-        record_ended()
         final_before_us = tracker.rows_final_before_us
         if final_before_us is not None:
             assign(final_before_us)
-            yield from ready(final_before_us)
+            hand_out(final_before_us)
         bar.update(len(batch))
     bar.close()
-    tracker.finish()
-    record_ended()
+    track = tracker.finish()
+    final = tracker.take_final()
+    for fid, fl in flights.items():  # the rows of the last updates: those of the final track
+        fl.causal = track.select(track.flight == fid)
+    take_rows(final.select(final.flight > newest[0]), final)
     if unread:
         assign(None)
-    yield from ready(None)
+    hand_out(None)
+    return track
 
 
 def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None,
@@ -257,10 +319,13 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     return spin.to_columns(spin.estimate_windows(windows, method=options.method))
 
 
+def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
+    """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out)."""
+    return spin_flight(part.events, part.track, options, part.starts_us)
+
+
 def _spin_unit(args) -> dict[str, np.ndarray]:
-    """One unit of work with plain inputs: events, a flight's track columns, window starts, options."""
-    events, track_columns, starts_us, options = args
-    return spin_flight(events, Track.from_columns(track_columns), options, starts_us)
+    return spin_part(*args)
 
 
 def _one_thread_per_worker() -> None:
@@ -270,26 +335,13 @@ def _one_thread_per_worker() -> None:
     threadpool_limits(1)
 
 
-def spin_units(flight: Flight, options: ReplayOptions) -> list[tuple]:
-    """The spin work of a flight as independent units of ``windows_per_unit`` windows each,
-    ``(events, track_columns, starts_us, options)``."""
-    longest_us = max(options.window_us, options.max_window_us)
-    columns = flight.track.columns()
-    t = flight.events["t"]
-    units = []
-    for starts in window_starts_us(flight.track, options.step_us).values():
-        for i in range(0, len(starts), options.windows_per_unit):
-            part = starts[i:i + options.windows_per_unit]
-            lo, hi = np.searchsorted(t, [part[0], part[-1] + longest_us], side="left")
-            units.append((flight.events[lo:hi], columns, part, options))
-    return units
-
-
 def _concat_columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     parts = [p for p in parts if len(p["t_start_us"])]
     if not parts:
         return {k: np.zeros((0, *shape), dtype) for k, (dtype, shape) in SPIN_FIELDS.items()}
-    return {k: np.concatenate([p[k] for p in parts]) for k in SPIN_FIELDS}
+    columns = {k: np.concatenate([p[k] for p in parts]) for k in SPIN_FIELDS}
+    order = np.argsort(columns["t_start_us"], kind="stable")
+    return {k: v[order] for k, v in columns.items()}
 
 
 @dataclass
@@ -319,18 +371,12 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
             raise ValueError(f"{name} must be positive, got {getattr(options, name)}")
     if rrd_path is not None and Path(rrd_path).is_dir():
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
-    tracks = []
-    # the spin of each flight starts in a worker as soon as tracking has passed it; once tracking
-    # is done, this process joins in
+    # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
+    # once tracking is done, this process joins in
     with SharedWork(_spin_unit, options.workers, preload=["capture.replay"],
                     initializer=_one_thread_per_worker) as work:
-        for flight in iter_flights(session_path, options, progress):
-            tracks.append(flight.track)
-            for unit in spin_units(flight, options):
-                work.add(unit)
-        parts = work.results(progress, desc="spin")
-    track = _concat_tracks(tracks)
-    spin_columns = _concat_columns(parts)
+        track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
+        spin_columns = _concat_columns(work.results(progress, desc="spin"))
     writer = update_session(session_path)
     writer.write_track(track.columns())
     writer.write_spin(spin_columns)

@@ -53,6 +53,7 @@ class CircleKalman:
         self.q_r = float(q_r_px)
         self.t_us = int(t_us)
         self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._gains: list[np.ndarray] = []
         self.x = np.array([z[0], z[1], velocity_px_s[0], velocity_px_s[1], gravity_px_s2[0],
                            gravity_px_s2[1], z[2]], dtype=np.float64)
         a_var = accel_sigma_px_s2 ** 2 if model == "ca" else 0.0
@@ -112,20 +113,29 @@ class CircleKalman:
         self.t_us = int(t_us)
         self.history.append((self.t_us, xp, pp, f, self.x.copy(), self.P.copy()))
 
-    def smoothed(self) -> tuple[np.ndarray, np.ndarray]:
-        """Rauch-Tung-Striebel smoothed states at every update.
+    def _gain(self, k: int) -> np.ndarray:
+        """RTS smoother gain from update ``k`` to ``k + 1`` (computed once; the filter never revisits it)."""
+        while len(self._gains) <= k:
+            j = len(self._gains)
+            _, _, _, _, _, pj = self.history[j]
+            _, _, pp1, f1, _, _ = self.history[j + 1]
+            self._gains.append(pj @ f1.T @ np.linalg.pinv(pp1))
+        return self._gains[k]
+
+    def smoothed(self, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Rauch-Tung-Striebel smoothed states of updates ``start .. stop - 1``, given the
+        updates before ``stop`` (default: all of them).
 
         Returns
         -------
         t_us : ndarray of int64, shape (K,)
         states : ndarray of float64, shape (K, 7)
         """
-        n = len(self.history)
-        xs = np.empty((n, 7))
-        xs[-1] = self.history[-1][4]
-        for k in range(n - 2, -1, -1):
-            _, _, _, _, xk, pk = self.history[k]
-            _, xp1, pp1, f1, _, _ = self.history[k + 1]
-            c = pk @ f1.T @ np.linalg.pinv(pp1)
-            xs[k] = xk + c @ (xs[k + 1] - xp1)
-        return np.array([h[0] for h in self.history], dtype=np.int64), xs
+        stop = len(self.history) if stop is None else stop
+        xs = np.empty((stop - start, 7))
+        xs[-1] = self.history[stop - 1][4]
+        for k in range(stop - 2, start - 1, -1):
+            _, _, _, _, xk, _ = self.history[k]
+            _, xp1, _, _, _, _ = self.history[k + 1]
+            xs[k - start] = xk + self._gain(k) @ (xs[k + 1 - start] - xp1)
+        return np.array([h[0] for h in self.history[start:stop]], dtype=np.int64), xs

@@ -60,6 +60,28 @@ def test_streaming_matches_batch_on_simulated_ball(spinning_flight):
     np.testing.assert_allclose(live.vy, batch.vy, atol=1e-6)
 
 
+def test_final_rows_stream_out_during_the_flight_and_never_change(spinning_flight):
+    ev, _ = spinning_flight
+    trk = BallTracker(W, H, smooth_lag_us=20_000)
+    parts, during_flight = [], 0
+    for chunk in np.array_split(ev, 30):
+        trk.update(chunk)
+        parts.append(trk.take_final())
+        during_flight += len(parts[-1]) if trk.active_flight is not None else 0
+    whole = trk.finish()
+    parts.append(trk.take_final())
+    assert during_flight >= len(whole) // 5  # rows become final while the flight goes on
+    streamed = {k: np.concatenate([p.columns()[k] for p in parts]) for k in whole.columns()}
+    for name, col in whole.columns().items():
+        np.testing.assert_array_equal(streamed[name], col, err_msg=name)  # final means unchanged
+    # a 20 ms lag already gives nearly the rows of smoothing the whole flight at once
+    ref = track_ball(ev, width=W, height=H, smooth_lag_us=10 ** 9)
+    np.testing.assert_array_equal(whole.t_us, ref.t_us)
+    assert np.max(np.hypot(whole.cx - ref.cx, whole.cy - ref.cy)) < 0.1
+    assert np.max(np.hypot(whole.vx - ref.vx, whole.vy - ref.vy)) < 0.01 * np.hypot(ref.vx, ref.vy).min()
+    assert np.max(np.abs(whole.cx - ref.cx)) > 0  # and it is a different (fixed-lag) smoother
+
+
 def test_noise_and_hot_pixels_alone_give_an_empty_track():
     ev, _ = noise_events(W, H, 0, 200_000, np.random.default_rng(5), rate_hz_per_px=5.0, hot_pixels=40)
     tr = track_ball(ev, width=W, height=H)

@@ -129,11 +129,20 @@ def test_kalman_recovers_constant_acceleration_and_smooths():
     x = 10 + 3000 * ts + 0.5 * 8000 * ts ** 2
     y = 200 - 1000 * ts
     kf = CircleKalman(0, (x[0], y[0], 20.0), velocity_px_s=(2500, -800), sigma_px=0.5)
+    zs = [(x[k] + rng.normal(0, 0.3), y[k] + rng.normal(0, 0.3), 20.0) for k in range(len(t))]
     for k in range(1, len(t)):
-        kf.update(int(t[k]), (x[k] + rng.normal(0, 0.3), y[k] + rng.normal(0, 0.3), 20.0), 0.3, 0.3)
+        kf.update(int(t[k]), zs[k], 0.3, 0.3)
     assert kf.x[2] == pytest.approx(3000 + 8000 * ts[-1], abs=60)
     tt, xs = kf.smoothed()
     assert np.array_equal(tt, t)
+    # a range of updates smoothed with the updates before its end only: as if the flight stopped there
+    stopped = CircleKalman(0, (x[0], y[0], 20.0), velocity_px_s=(2500, -800), sigma_px=0.5)
+    for k in range(1, 9):
+        stopped.update(int(t[k]), zs[k], 0.3, 0.3)
+    t5, x5 = kf.smoothed(3, 9)
+    np.testing.assert_array_equal(t5, t[3:9])
+    np.testing.assert_allclose(x5, stopped.smoothed()[1][3:], rtol=1e-12, atol=1e-9)
+    assert np.max(np.abs(x5[:, 0] - xs[3:9, 0])) > 0  # later updates do change the smoothed rows
     assert np.max(np.abs(xs[:, 2] - (3000 + 8000 * ts))) < 80
     assert np.max(np.abs(xs[:, 3] + 1000)) < 40
 

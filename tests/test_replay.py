@@ -8,11 +8,11 @@ import pytest
 
 import capture.replay as replay_mod
 import sim
-from capture.replay import ReplayOptions, iter_flights, spin_units
-from capture.session import create_session
+from capture.replay import ReplayOptions, track_session
+from capture.session import Session, create_session
 from capture.workers import SharedWork
 from detect import track_ball
-from detect.track import spin_windows
+from detect.track import spin_windows, window_starts_us
 from sim.esim import merge
 
 W, H = 480, 320
@@ -34,49 +34,73 @@ def two_flights(tmp_path_factory):
     return path, events
 
 
-OPTIONS = ReplayOptions(window_us=2000, max_window_us=8000, step_us=4000, min_events=300)
+OPTIONS = ReplayOptions(window_us=2000, max_window_us=8000, step_us=4000, min_events=300, windows_per_unit=3)
+WINDOW_OPTS = dict(window_us=OPTIONS.window_us, step_us=OPTIONS.step_us, min_events=OPTIONS.min_events,
+                   max_events=OPTIONS.max_events, max_window_us=OPTIONS.max_window_us)
 
 
-@pytest.mark.parametrize("batch_events", [1 << 20, 7_000])
-def test_flights_stream_out_in_order_with_the_whole_track(two_flights, monkeypatch, batch_events):
-    path, events = two_flights
-    monkeypatch.setattr(replay_mod, "BATCH_EVENTS", batch_events)  # small batches: flights end mid-stream
-    flights = list(iter_flights(path, OPTIONS, progress=False))
-    whole = track_ball(events, width=W, height=H)
-    assert len(flights) == 2 == len(whole.flight_ids())
-    assert [int(f.track.flight[0]) for f in flights] == whole.flight_ids().tolist()
-    for f in flights:
-        part = whole.select(whole.flight == f.track.flight[0])
-        for name, col in f.track.columns().items():
-            np.testing.assert_array_equal(col, getattr(part, name), err_msg=name)
-        # only events near the ball are kept, all of them time-sorted
-        assert 0 < len(f.events) < len(events) // 2
-        assert np.all(np.diff(f.events["t"].astype(np.int64)) >= 0)
-
-
-@pytest.mark.parametrize("batch_events", [1 << 20, 7_000])
-def test_flight_events_give_the_same_spin_windows_as_all_events(two_flights, monkeypatch, batch_events):
-    path, events = two_flights
+def _track_with_parts(path, monkeypatch, batch_events):
+    """Track the session in batches; returns the track, the parts and the batches read before each."""
     monkeypatch.setattr(replay_mod, "BATCH_EVENTS", batch_events)
-    opts = dict(window_us=OPTIONS.window_us, step_us=OPTIONS.step_us, min_events=OPTIONS.min_events,
-                max_events=OPTIONS.max_events, max_window_us=OPTIONS.max_window_us)
+    read = [0]
+    iter_events = Session.iter_events
+
+    def counting(self, *args, **kwargs):
+        for batch in iter_events(self, *args, **kwargs):
+            read[0] += 1
+            yield batch
+
+    monkeypatch.setattr(Session, "iter_events", counting)
+    parts, when = [], []
+    track = track_session(path, OPTIONS, progress=False, on_part=lambda p: (parts.append(p), when.append(read[0])))
+    return track, parts, when, read[0]
+
+
+@pytest.mark.parametrize("batch_events", [1 << 20, 7_000])
+def test_parts_hold_every_window_of_every_flight_with_what_it_needs(two_flights, monkeypatch, batch_events):
+    path, events = two_flights
+    track, parts, when, n_batches = _track_with_parts(path, monkeypatch, batch_events)
+    whole = track_ball(events, width=W, height=H)
+    assert len(whole.flight_ids()) == 2
+    for name, col in whole.columns().items():
+        np.testing.assert_array_equal(getattr(track, name), col, err_msg=name)
+    # every window start of every flight in exactly one part, in order, parts of windows_per_unit
+    starts = window_starts_us(whole, OPTIONS.step_us)
+    for fid, expected in starts.items():
+        mine = [p for p in parts if p.track.flight[0] == fid]
+        np.testing.assert_array_equal(np.concatenate([p.starts_us for p in mine]), expected)
+        assert all(len(p.starts_us) == OPTIONS.windows_per_unit for p in mine[:-1])
+    # a part's events and rows give exactly the windows that all events and the whole track give
     n_windows = 0
-    for f in iter_flights(path, OPTIONS, progress=False):
-        mine = list(spin_windows(f.events, f.track, **opts))
-        full = list(spin_windows(events, f.track, **opts))
-        assert len(mine) == len(full) >= 2
+    for p in parts:
+        fid = int(p.track.flight[0])
+        mine = list(spin_windows(p.events, p.track, starts_us={fid: p.starts_us}, **WINDOW_OPTS))
+        full = list(spin_windows(events, whole, starts_us={fid: p.starts_us}, **WINDOW_OPTS))
+        assert len(mine) == len(full)
         for a, b in zip(mine, full):
-            assert (a.t_start_us, a.t_end_us, a.center, a.radius_px) == (b.t_start_us, b.t_end_us, b.center,
-                                                                          b.radius_px)
+            assert (a.t_start_us, a.t_end_us, a.center, a.radius_px, a.velocity_px_s) == (
+                b.t_start_us, b.t_end_us, b.center, b.radius_px, b.velocity_px_s)
             np.testing.assert_array_equal(a.events, b.events)
         n_windows += len(mine)
-        # the flight's units cover all its windows, each with the events of its windows' span
-        units = spin_units(f, OPTIONS)
-        assert {w.t_start_us for w in full} <= {int(s) for u in units for s in u[2]}
-        for ev, _, starts, _ in units:
-            span = (f.events["t"] >= starts[0]) & (f.events["t"] < starts[-1] + OPTIONS.max_window_us)
-            np.testing.assert_array_equal(ev, f.events[span])
-    assert n_windows >= 4
+        # only events near the ball are kept, time-sorted
+        assert len(p.events) < np.sum((events["t"] >= p.starts_us[0])
+                                      & (events["t"] < p.starts_us[-1] + OPTIONS.max_window_us))
+        assert np.all(np.diff(p.events["t"].astype(np.int64)) >= 0)
+    assert n_windows >= 8
+    if batch_events < len(events):  # streamed: the first flight's parts came out while tracking went on
+        first = [w for p, w in zip(parts, when) if p.track.flight[0] == whole.flight_ids()[0]]
+        assert first[0] < n_batches and first[-1] < n_batches
+
+
+def test_replay_of_parts_equals_spin_of_whole_flights(two_flights, tmp_path):
+    path, events = two_flights
+    result = replay_mod.replay(path, options=ReplayOptions(**{**OPTIONS.__dict__, "workers": 2}), progress=False)
+    whole = track_ball(events, width=W, height=H)
+    ref = [replay_mod.spin_flight(events, whole.select(whole.flight == f), OPTIONS) for f in whole.flight_ids()]
+    ref = {k: np.concatenate([r[k] for r in ref]) for k in ref[0]}
+    assert len(ref["t_start_us"]) >= 8
+    for name, col in ref.items():
+        np.testing.assert_array_equal(result.spin[name], col, err_msg=name)
 
 
 def _slow_square(x):
