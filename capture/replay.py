@@ -28,12 +28,12 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 import spin
-from capture.events import EVENT_DTYPE
+from capture.events import concatenate
 from capture.frames import attach_video, iter_session_frames
 from capture.workers import SharedWork
 from capture.session import SPIN_FIELDS, SessionError, open_session, update_session
 from detect import BallTracker
-from detect.track import Track, spin_windows, window_starts_us
+from detect.track import Track, spin_windows
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -177,8 +177,7 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
             return
         if assigned_before_us is not None and starts[-1] + longest_us > assigned_before_us:
             return
-        events = np.concatenate(flight.near) if len(flight.near) > 1 else (
-            flight.near[0] if flight.near else np.zeros(0, EVENT_DTYPE))
+        events = concatenate(flight.near)
         t = events["t"]
         lo, hi = np.searchsorted(t, [starts[0], starts[-1] + longest_us], side="left")
         rows = flight.final

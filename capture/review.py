@@ -49,7 +49,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from capture.events import EVENT_DTYPE
+from capture.events import EVENT_DTYPE, concatenate
 from capture.session import SPIN_FIELDS, TRACK_FIELDS, Session, SessionError, open_session
 from detect.track import Track
 
@@ -294,7 +294,7 @@ class _Logger:
             return
         self.stats.n_events += len(events)
         self._t_now = max(self._t_now, int(events["t"][-1]))
-        ev = np.concatenate([self._carry, events]) if len(self._carry) else events
+        ev = concatenate([self._carry, events]) if len(self._carry) else events
         last_start = int(ev["t"][-1]) // self.slice_us * self.slice_us
         cut = int(np.searchsorted(ev["t"], last_start, side="left"))
         self._carry = ev[cut:].copy()

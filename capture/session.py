@@ -35,7 +35,7 @@ import zarr
 from zarr.codecs import BloscCodec
 from zarr.codecs.numcodecs import Delta
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
@@ -187,7 +187,7 @@ class SessionWriter:
         self.flush_if_due()
 
     def _write_events(self, count: int) -> None:
-        data = np.concatenate(self._buffer) if len(self._buffer) > 1 else self._buffer[0]
+        data = concatenate(self._buffer)
         head, tail = data[:count], data[count:]
         self._buffer = [tail] if len(tail) else []
         self._buffered = len(tail)

@@ -33,7 +33,7 @@ import itertools
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE
+from capture.events import EVENT_DTYPE, concatenate
 from detect.event_detector import CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle
 from detect.frame_detector import FrameDetector
 from detect.hot_pixels import HotPixelMap
@@ -197,7 +197,7 @@ class BallTracker:
     def _run(self, final: bool) -> None:
         if not self._pending:
             return
-        ev = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
+        ev = concatenate(self._pending)
         self._pending = []
         t = np.ascontiguousarray(ev["t"])  # binary search on a strided field would copy it each time
         t_last = int(t[-1])

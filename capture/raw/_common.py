@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void
 
 STAT_KEYS = (
     "words",                     # complete words decoded
@@ -176,20 +176,8 @@ def time_high_words(high: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarr
     return count, item, value
 
 
-def as_void(a: np.ndarray) -> np.ndarray:
-    """Records as opaque bytes: NumPy copies those ~20x faster than multi-field structs."""
-    return a.view(np.dtype((np.void, a.dtype.itemsize)))
-
-
 def select(records: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """``records[keep]`` for a structured array, fast."""
     return as_void(records)[keep].view(records.dtype)
 
 
-def concat(parts: list[np.ndarray], dtype: np.dtype) -> np.ndarray:
-    """``np.concatenate(parts)`` for structured arrays of ``dtype``, fast; empty list -> empty array."""
-    if not parts:
-        return np.zeros(0, dtype)
-    if len(parts) == 1:
-        return parts[0]
-    return np.concatenate([as_void(p) for p in parts]).view(dtype)

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void, concatenate
 from capture.raw import evt2, evt3
-from capture.raw._common import as_void, concat
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
 from capture.raw.stream import DEFAULT_CHUNK_BYTES, WRAP_US, RawReader
@@ -122,7 +121,7 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
             raise RawFormatError(message)
         warnings.warn(message, RawDamageWarning, stacklevel=2)
     return RawFile(
-        events=out.array(), triggers=concat(tr_parts, TRIGGER_DTYPE),
+        events=out.array(), triggers=concatenate(tr_parts, TRIGGER_DTYPE),
         width=int(reader.width), height=int(reader.height), format=reader.format,
         header=reader.header, stats=reader.decoder.stats, time_shift_us=reader.decoder.time_shift_us)
 

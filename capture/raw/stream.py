@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
-from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, concat
+from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState
 from capture.raw.errors import RawFormatError
 from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
 
@@ -130,8 +130,8 @@ class StreamDecoder:
         else:
             words = np.frombuffer(data, "<u4", 2 * n_words).reshape(-1, 2)
         parts = [self._decode_batch(words[i:i + BATCH_WORDS]) for i in range(0, n_words, BATCH_WORDS)]
-        events = concat([p[0] for p in parts if len(p[0])], EVENT_DTYPE)
-        triggers = concat([p[1] for p in parts if len(p[1])], TRIGGER_DTYPE)
+        events = concatenate([p[0] for p in parts if len(p[0])], EVENT_DTYPE)
+        triggers = concatenate([p[1] for p in parts if len(p[1])], TRIGGER_DTYPE)
         shift = self.time_shift_us
         if shift and len(events):
             events["t"] -= shift
