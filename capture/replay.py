@@ -177,16 +177,24 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
             return
         if assigned_before_us is not None and starts[-1] + longest_us > assigned_before_us:
             return
-        events = concatenate(flight.near)
-        t = events["t"]
-        lo, hi = np.searchsorted(t, [starts[0], starts[-1] + longest_us], side="left")
+        end_us = int(starts[-1]) + longest_us
+        pieces = []
+        for chunk in flight.near:  # time-ordered chunks: join only the part's span
+            t = chunk["t"]
+            if t[0] >= end_us:
+                break
+            lo, hi = np.searchsorted(t, [starts[0], end_us], side="left")
+            pieces.append(chunk[lo:hi])
         rows = flight.final
         i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
         i1 = int(np.searchsorted(rows.t_us, starts[-1], side="left")) + 1
-        on_part(SpinPart(starts, rows.select(slice(i0, i1)), events[lo:hi]))
+        on_part(SpinPart(starts, rows.select(slice(i0, i1)), concatenate(pieces)))
         flight.next_start_us = int(starts[-1]) + options.step_us
-        keep = int(np.searchsorted(t, flight.next_start_us, side="left"))
-        flight.near = [events[keep:]] if keep < len(events) else []
+        near = []
+        for chunk in flight.near:
+            if chunk["t"][-1] >= flight.next_start_us:
+                near.append(chunk[int(np.searchsorted(chunk["t"], flight.next_start_us, side="left")):])
+        flight.near = near
         flight.final = rows.select(slice(max(0, int(np.searchsorted(rows.t_us, flight.next_start_us,
                                                                      side="right")) - 1), None))
 

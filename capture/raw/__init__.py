@@ -14,16 +14,13 @@ write(path, events, triggers=None, format="EVT3", width=..., height=...) / encod
     Encode arrays as a RAW file (EVT3 with vectors, or EVT2).
 
 Command line: ``python -m capture.raw info FILE`` and ``python -m capture.raw convert FILE SESSION_DIR``.
-Importing this package tunes glibc's allocator to keep freed memory (see ``_malloc``).
 """
 
-from capture.raw._malloc import keep_freed_memory
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.files import RawFile, encode, read, write
 from capture.raw.header import FORMATS, header_bytes, normalize_format, parse_header
 from capture.raw.stream import RawReader, StreamDecoder, iter_chunks
 
-keep_freed_memory()
 
 __all__ = ["FORMATS", "RawDamageWarning", "RawFile", "RawFormatError", "RawReader", "StreamDecoder",
            "encode", "header_bytes", "iter_chunks", "normalize_format", "parse_header", "read", "write"]
