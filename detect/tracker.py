@@ -128,7 +128,7 @@ class BallTracker:
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
         self._frame_seq = itertools.count()
-        self._pending: list[np.ndarray] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (events, their times contiguous)
         self._block0: int | None = None
         self._kf: CircleKalman | None = None
         self._scores: list[float] = []
@@ -154,7 +154,7 @@ class BallTracker:
         if len(events):
             if self._block0 is None:
                 self._block0 = int(events["t"][0]) // self.block_us * self.block_us
-            self._pending.append(events)
+            self._pending.append((events, np.ascontiguousarray(events["t"])))
             self._run(final=False)
         return self._take_rows()
 
@@ -195,34 +195,34 @@ class BallTracker:
 
     # ------------------------------------------------------------------ blocks and slices
     def _run(self, final: bool) -> None:
-        if not self._pending:
-            return
-        ev = concatenate(self._pending)
-        self._pending = []
-        t = np.ascontiguousarray(ev["t"])  # binary search on a strided field would copy it each time
-        t_last = int(t[-1])
-        i = 0
-        while i < len(ev):
-            b0 = self._block0 + (int(t[i]) - self._block0) // self.block_us * self.block_us
+        """Process every complete block of the pending events (every block if ``final``)."""
+        while self._pending:
+            t0 = int(self._pending[0][1][0])
+            b0 = self._block0 + (t0 - self._block0) // self.block_us * self.block_us
             b1 = b0 + self.block_us
-            if b1 > t_last and not final:
-                break
-            j = int(np.searchsorted(t, b1, side="left"))
-            self._process_block(ev[i:j], t[i:j], b0)
+            pieces, rest = [], []
+            for k, (ev, t) in enumerate(self._pending):
+                j = int(np.searchsorted(t, b1, side="left"))
+                pieces.append((ev[:j], t[:j]))
+                if j < len(ev):
+                    rest = [(ev[j:], t[j:]), *self._pending[k + 1:]]
+                    break
+            else:
+                if not final:
+                    return  # the block goes on in events still to come
+            self._pending = rest
+            if len(pieces) == 1:  # a block within one batch: views, no copy
+                ev, t = pieces[0]
+            else:
+                ev, t = concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
+            self._process_block(ev, t, b0)
             self._t_processed = b1
-            i = j
-        if i < len(ev):
-            self._pending = [ev[i:]]
 
     def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int) -> None:
         x = ev["x"].astype(np.int32)
         y = ev["y"].astype(np.int32)
-        if self._hot is not None:
-            pixel = y * self.width + x
-            if (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
-                self._hot.update(pixel)
-            keep = self._hot.keep(pixel)
-            x, y, t = x[keep], y[keep], t[keep]
+        if self._hot is not None and (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
+            self._hot.update(y * self.width + x)
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
         idx = np.searchsorted(t, bounds, side="left")
         for k in range(len(bounds) - 1):
@@ -233,9 +233,14 @@ class BallTracker:
             self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], m)
 
     def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, m: int) -> None:
+        """One slice's events (hot pixels not yet removed: tracking removes them from the few
+        events near the ball only)."""
         if self._kf is not None:
             self._track_slice(t, x, y, m)
         if self._kf is None:
+            if self._hot is not None:
+                keep = np.flatnonzero(self._hot.keep(y * self.width + x))
+                t, x, y = t.take(keep), x.take(keep), y.take(keep)
             self._search_slice(t, x, y, m)
 
     def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
@@ -274,6 +279,8 @@ class BallTracker:
         hx = reach + abs(vx) * self.slice_us * 0.5e-6
         hy = reach + abs(vy) * self.slice_us * 0.5e-6
         box = np.flatnonzero((x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy))
+        if self._hot is not None:
+            box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
         t, x, y = t.take(box), x.take(box), y.take(box)
         dt_s = (t - m) * 1e-6
         dx = x - vx * dt_s - cx
