@@ -61,7 +61,8 @@ class ReplayOptions:
         Spin method, ``"fast"`` or ``"paper"``.
     workers : int
         Processes for the spin units, this one included (1: all in this process); the
-        others start spin work while this one is still tracking.
+        others start spin work while this one is still tracking (sessions shorter than
+        ``WORKERS_MIN_SPAN_S`` use this process alone).
     windows_per_unit : int
         Spin windows per unit of work when flights are split across workers.
     tracker : dict
@@ -335,6 +336,15 @@ def _spin_unit(args) -> dict[str, np.ndarray]:
     return spin_part(*args)
 
 
+WORKERS_MIN_SPAN_S = 1.0
+"""Shorter sessions are analysed in this process alone: worker processes take about a second of
+CPU to start, more than the spin work of such a session."""
+
+WORKER_PRELOAD = ["capture.session", "detect", "spin"]
+"""Imported once by the worker processes' forkserver (most of their start-up time); not this module
+itself, which may be the ``__main__`` of ``python -m capture.replay``."""
+
+
 def _one_thread_per_worker() -> None:
     """Worker processes already run in parallel: BLAS and OpenCV thread pools inside them only
     oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this)."""
@@ -380,7 +390,11 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
     # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
     # once tracking is done, this process joins in
-    with SharedWork(_spin_unit, options.workers, preload=["capture.replay"],
+    s = open_session(session_path)
+    span_s = (int(s.events_range(s.n_events - 1, s.n_events)["t"][0]) - int(s.events_range(0, 1)["t"][0])) * 1e-6 \
+        if s.n_events else 0.0
+    workers = options.workers if span_s >= WORKERS_MIN_SPAN_S else 1
+    with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
                     initializer=_one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
         spin_columns = _concat_columns(work.results(progress, desc="spin"))

@@ -35,7 +35,8 @@ class SharedWork:
 
     Worker processes come from a forkserver (forking a process that has threads, as
     Zarr's or OpenCV's, can deadlock the child); they are started in a background
-    thread so that adding units never waits for them. Use as a context manager.
+    thread when the first unit is added, so that adding units never waits for them
+    (nor is anything started when there is no work). Use as a context manager.
     """
 
     def __init__(self, fn: Callable, workers: int, *, preload: Sequence[str] = (),
@@ -52,9 +53,9 @@ class SharedWork:
         self._lock = threading.Lock()
         self._closed = False
         self._ready = threading.Event()
-        if self._n_pool:
-            threading.Thread(target=self._start, args=(list(preload), initializer), name="SharedWork-start").start()
-        else:
+        self._starter = threading.Thread(target=self._start, args=(list(preload), initializer),
+                                         name="SharedWork-start") if self._n_pool else None
+        if self._starter is None:
             self._ready.set()
 
     def _start(self, preload, initializer) -> None:
@@ -88,6 +89,8 @@ class SharedWork:
         """Queue one unit; a free worker process takes it up at once."""
         self._queue.append((self._n_units, unit))
         self._n_units += 1
+        if self._starter is not None and self._starter.ident is None:  # the first unit
+            self._starter.start()
         self._feed()
 
     def results(self, progress: bool = False, desc: str = "work") -> list:

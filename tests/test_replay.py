@@ -92,8 +92,9 @@ def test_parts_hold_every_window_of_every_flight_with_what_it_needs(two_flights,
         assert first[0] < n_batches and first[-1] < n_batches
 
 
-def test_replay_of_parts_equals_spin_of_whole_flights(two_flights, tmp_path):
+def test_replay_of_parts_equals_spin_of_whole_flights(two_flights, monkeypatch):
     path, events = two_flights
+    monkeypatch.setattr(replay_mod, "WORKERS_MIN_SPAN_S", 0.0)  # a worker process even for this short session
     result = replay_mod.replay(path, options=ReplayOptions(**{**OPTIONS.__dict__, "workers": 2}), progress=False)
     whole = track_ball(events, width=W, height=H)
     ref = [replay_mod.spin_flight(events, whole.select(whole.flight == f), OPTIONS) for f in whole.flight_ids()]
