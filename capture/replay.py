@@ -440,7 +440,7 @@ def main(argv=None) -> int:
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
     ap.add_argument("--workers", type=int, default=ReplayOptions.workers,
-                    help="processes for spin estimation")
+                    help="processes in all, this one included (spin runs in the others while this one tracks)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args = ap.parse_args(argv)
     progress = not args.quiet
