@@ -113,14 +113,14 @@ def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, long
     """Indices of events ``(t_us, x, y)`` (time-sorted, contiguous) that a spin window of
     ``rows``' flight may use.
 
-    An event counts when the flight's last row at or before it is at most
-    ``longest_us`` earlier and the event lies within :data:`REACH_MARGIN` of that
-    row's circle moved along its velocity. Rows are taken in groups spanning about
+    An event counts when it lies within :data:`REACH_MARGIN` of the circle of the flight's
+    last row at or before it, moved along that row's velocity, and is at most
+    ``longest_us`` after the flight's last row. Rows are taken in groups spanning about
     ``group_us``: a box around the ball's path over the group rejects most events with
     integer comparisons, the few left are tested exactly.
     """
     t_row = rows.t_us
-    ends = np.minimum(np.append(t_row[1:], np.iinfo(np.int64).max), t_row + longest_us)
+    ends = np.append(t_row[1:], t_row[-1] + longest_us)  # a window may start in a gap between rows
     reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
     span_s = (ends - t_row) * 1e-6
     ex, ey = rows.cx + rows.vx * span_s, rows.cy + rows.vy * span_s  # centres at the rows' ends
@@ -188,7 +188,7 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
             pieces.append(chunk[lo:hi])
         rows = flight.final
         i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
-        i1 = int(np.searchsorted(rows.t_us, starts[-1], side="left")) + 1
+        i1 = int(np.searchsorted(rows.t_us, starts[-1], side="right")) + 1  # rows may share a time
         on_part(SpinPart(starts, rows.select(slice(i0, i1)), concatenate(pieces)))
         flight.next_start_us = int(starts[-1]) + options.step_us
         near = []
@@ -266,8 +266,11 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     def hand_out(assigned_before_us):
         for fid in list(flights):
             fl = flights[fid]
-            if on_part is not None:
-                _hand_out_parts(fl, options, assigned_before_us, on_part)
+            if on_part is None:  # tracking only: nothing to keep
+                if fl.ended:
+                    del flights[fid]
+                continue
+            _hand_out_parts(fl, options, assigned_before_us, on_part)
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
                 del flights[fid]
@@ -281,7 +284,8 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             tracker.update_frame(pending[1], pending[0])
             pending = next(frames, None)
         take_rows(tracker.update(batch), tracker.take_final())
-        unread.append(batch)
+        if on_part is not None:
+            unread.append(batch)
         final_before_us = tracker.rows_final_before_us
         if final_before_us is not None:
             assign(final_before_us)

@@ -104,6 +104,36 @@ def test_replay_of_parts_equals_spin_of_whole_flights(two_flights, monkeypatch):
         np.testing.assert_array_equal(result.spin[name], col, err_msg=name)
 
 
+def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path, monkeypatch):
+    """A slice the tracker misses leaves a gap between rows longer than the longest window."""
+    rec = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 150.0),
+                     velocity_px_s=(13_000.0, -1500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
+                     seed=11)
+    ev = rec.events
+    rows = track_ball(ev, width=W, height=H)
+    s0 = int(rows.t_us[8]) + 1000  # thin out the slice after row 8: no fit there
+    hole = (ev["t"] >= s0) & (ev["t"] < s0 + 2000)
+    ev = ev[~hole | (np.random.default_rng(0).random(len(ev)) < 0.01)]
+    whole = track_ball(ev, width=W, height=H)
+    assert np.diff(whole.t_us).max() >= 4000
+    path = tmp_path / "gap"
+    with create_session(path, width=W, height=H) as w:
+        w.append_events(ev)
+    opts = ReplayOptions(window_us=1000, max_window_us=1000, step_us=2000, min_events=5, windows_per_unit=3)
+    monkeypatch.setattr(replay_mod, "BATCH_EVENTS", 5000)
+    parts = []
+    track_session(path, opts, progress=False, on_part=parts.append)
+    kw = dict(window_us=1000, step_us=2000, min_events=5, max_events=opts.max_events, max_window_us=1000)
+    n = 0
+    for p in parts:
+        fid = int(p.track.flight[0])
+        mine = {w.t_start_us: len(w.events) for w in spin_windows(p.events, p.track, starts_us={fid: p.starts_us}, **kw)}
+        full = {w.t_start_us: len(w.events) for w in spin_windows(ev, whole, starts_us={fid: p.starts_us}, **kw)}
+        assert mine == full
+        n += len(full)
+    assert n >= 10
+
+
 def _slow_square(x):
     time.sleep(0.05)
     if x < 0:
@@ -119,6 +149,23 @@ def test_shared_work_returns_every_result_in_order_from_both_processes():
     assert [r for r, _ in out] == [i * i for i in range(60)]
     pids = {p for _, p in out}
     assert os.getpid() in pids and len(pids) == 2  # the caller and one worker process shared it
+
+
+def test_shared_work_feeds_the_workers_while_the_caller_is_busy_and_bounds_the_queue():
+    with SharedWork(_slow_square, 2) as work:
+        for i in range(8):
+            work.add(i)
+        time.sleep(3.0)  # the caller's own work (tracking): the worker goes on meanwhile
+        done_early = sum(f.done() for f in work._results.values() if hasattr(f, "done"))
+        out = work.results()
+    assert done_early >= 4 and [r for r, _ in out] == [i * i for i in range(8)]
+    with SharedWork(_slow_square, 2, max_queued=2) as work:
+        for i in range(12):
+            work.add(i)
+            assert len(work._queue) <= 2  # the caller takes on work rather than queueing it all
+        out = work.results()
+    assert [r for r, _ in out] == [i * i for i in range(12)]
+    assert os.getpid() in {p for _, p in out}
 
 
 def test_shared_work_in_one_process_and_errors():
