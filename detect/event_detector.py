@@ -50,7 +50,7 @@ class CircleFit:
 
 def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     """Algebraic least-squares (Kasa) circle through points ``(x, y)`` -> ``(cx, cy, r)``."""
-    mx, my = x.mean(), y.mean()
+    mx, my = x.sum() / len(x), y.sum() / len(y)  # = mean(), without its wrapper's overhead
     u, v = x - mx, y - my
     suu, svv, suv = u @ u, v @ v, u @ v
     z = u * u + v * v
@@ -165,18 +165,19 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
             if np.array_equal(new_keep, keep):
                 break
             keep = new_keep
-        if keep.sum() < 5:
+        n_keep = int(np.count_nonzero(keep))
+        if n_keep < 5:
             return None
         moved = np.hypot(fcx - cx, fcy - cy)
         cx, cy, r = fcx, fcy, fr
-        rms = float(np.sqrt(np.mean(res[keep] ** 2)))
-        n_in = int(keep.sum())
+        rms = float(np.sqrt(np.sum(res[keep] ** 2) / n_keep))
+        n_in = n_keep
         if moved < 0.05:  # sectors would not change
             break
     if not (r_range[0] <= r <= r_range[1]):
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2
-    inside = float(np.mean(d2 <= (r + 1.5) ** 2))
+    inside = np.count_nonzero(d2 <= (r + 1.5) ** 2) / len(d2)
     coverage = n_in / n_sectors
     sigma_rim = max(1.0, 0.04 * r)
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
