@@ -1,8 +1,8 @@
-"""The fast spin estimator: global coarse search, then coarse-to-fine L-BFGS.
+"""The fast spin estimator: global coarse search, then coarse-to-fine BFGS.
 
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
-2. The best mutually distinct grid points are refined with L-BFGS
+2. The best mutually distinct grid points are refined with BFGS
    (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
    growing rotation spans and finer IWEs, ending on the whole window at full
    resolution; the velocity stays at the prior unless the window covers enough
@@ -25,9 +25,10 @@ from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
-# (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
-# uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 12.0, 1.2, 500, 8), (6.0, 40.0, 1.0, 2500, 6), (np.inf, 100.0, 0.55, 8000, 6))
+# (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
+# change that ends them); the last level uses the whole window and gives its blur in ball pixels.
+# The IWE scale is capped at ``max_scale``.
+LEVELS = ((2.0, 12.0, 1.2, 500, 8, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 1e-5), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,7 @@ def _disc_fill(ev: BallEvents, velocity_px_s, n_sectors: int = 16, max_events: i
 
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  omega_ratio: float = 1.6, n_candidates: int = 2, n_directions: int = 40,
+                  omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
                   coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
                   refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
@@ -122,8 +123,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4]) for w in starts),
-                     key=lambda m: -m.contrast)
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4], ftol=first[5])
+                      for w in starts), key=lambda m: -m.contrast)
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
@@ -131,7 +132,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     w, v = best.w_rad_s, best.v_px_s
     margin = 1.0
     for li, level in enumerate(levels[1:], start=1):
-        span, _, _, n_ev, iterations = level
+        span, _, _, n_ev, iterations, ftol = level
         last = li == len(levels) - 1
         omega = float(np.linalg.norm(w))
         sub = events_for_span(ev, 1e-9 if last else omega, np.inf if last else span, n_ev)
@@ -140,7 +141,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
-                        max_iterations=iterations if velocity_known else 3 * iterations)
+                        max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol)
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2 and rival is not None:
             rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)

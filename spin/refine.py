@@ -79,7 +79,7 @@ def bfgs_minimise(fun, x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e
 
 
 def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine_velocity: bool = False,
-             max_iterations: int = 40) -> LocalMax:
+             max_iterations: int = 40, ftol: float = 1e-6) -> LocalMax:
     """Maximise the contrast from ``(w0, v0)`` with BFGS, at most ``2 * max_iterations`` evaluations.
 
     Parameters are scaled so that one unit moves the outermost events by about one
@@ -110,6 +110,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
             g = np.concatenate([g, -gv * v_unit * norm])
         return -val * norm, g
 
-    x, f, _, converged, n_eval = bfgs_minimise(fun, np.zeros(n_params), max_evaluations=2 * max_iterations)
+    x, f, _, converged, n_eval = bfgs_minimise(fun, np.zeros(n_params), max_evaluations=2 * max_iterations,
+                                               ftol=ftol)
     w, v = unpack(x)
     return LocalMax(w, np.asarray(v, dtype=np.float64), float(-f / norm), converged, n_eval)

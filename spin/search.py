@@ -119,8 +119,12 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
-                  truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 4):
+                  truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 4,
+                  min_rotation_rad: float = 0.1):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
+
+    Speeds that turn the ball by less than ``min_rotation_rad`` over the whole window
+    are left out but for the fastest of them (they cannot be told apart from it).
 
     Row ``omega`` uses ``n_events`` events spanning ``span_rad`` of rotation about ``t_ref``
     (:func:`events_for_span`).
@@ -135,6 +139,9 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     """
     n_omega = int(np.ceil(np.log(omega_max_rad_s / omega_min_rad_s) / np.log(omega_ratio))) + 1
     omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
+    window_s = max(float(ev.tau_s[0] - ev.tau_s[-1]), 1e-9)
+    omegas = omegas[max(0, int(np.searchsorted(omegas * window_s, min_rotation_rad)) - 1):]
+    n_omega = len(omegas)
     directions = fibonacci_sphere(n_directions)
     geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate)
     index = np.stack([_span_index(ev, float(om), span_rad, n_events) for om in omegas])  # (M, n)
