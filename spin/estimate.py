@@ -41,8 +41,9 @@ class SpinEstimate:
         Whether the optimiser met its convergence test.
     confidence : float
         0..1; low when the contrast barely beats no rotation, when a distinct rival
-        solution (other axis or aliased omega) is almost as good, or when the window
-        covers little rotation.
+        solution (other axis or aliased omega) is almost as good, when the window
+        covers little rotation, when little of the ball's rim fires, or when the
+        events come in bursts (a strobe: aliased spins align them equally well).
     method : str
         ``"fast"`` or ``"paper"``.
     """

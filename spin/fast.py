@@ -7,12 +7,13 @@
    growing rotation spans and finer IWEs, ending on the whole window at full
    resolution; the velocity stays at the prior unless the window covers enough
    rotation to separate spin from translation.
-3. Confidence: the contrast margin of the winner over the best distinct rival
+3. Confidence: the contrast gain over no rotation, the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
    mirrored axis) on the second-last level's events, the agreement of the IWEs of
    two halves of the events (structure rather than over-fitted noise), the
-   motion the window covers (pixels travelled at the ball's equator) and how much of
-   the ball's rim fires at all (a ball partly outside the sensor or hidden).
+   motion the window covers (pixels travelled at the ball's equator), how much of
+   the ball's rim fires at all (a ball partly outside the sensor or hidden) and how
+   evenly the events fill the window in time (bursts leave aliased spins possible).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ class FastResult:
     margin: float
     coverage_px: float
     disc_fill: float
+    time_fill: float
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
@@ -87,6 +89,25 @@ def _disc_fill(ev: BallEvents, velocity_px_s, n_sectors: int = 16, max_events: i
     return float(np.mean(counts >= 0.15 * counts.mean()))
 
 
+def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_events: int = 8000) -> float:
+    """Fraction of ``n_bins`` equal time bins of the window that hold events (0..1).
+
+    Bins are at least ``min_bin_s`` wide (timestamps are whole microseconds).  A bin
+    counts when it holds at least 10 % of the mean count.  Events bunched in time (a
+    strobe or flickering light: bursts with gaps) leave the motion between bursts
+    unseen, so spins that differ by a texture symmetry's turn per gap align the bursts
+    equally well (aliasing); a continuous stream fills every bin.
+    """
+    tau = ev.tau_s[::max(1, len(ev) // max_events)]
+    span = float(tau[0] - tau[-1])
+    n_bins = int(min(n_bins, span / min_bin_s))
+    if n_bins < 1:
+        return 1.0
+    bins = np.minimum(((tau[0] - tau) * (n_bins / span)).astype(np.int64), n_bins - 1)
+    counts = np.bincount(bins, minlength=n_bins)
+    return float(np.mean(counts >= 0.1 * counts.mean()))
+
+
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
@@ -128,9 +149,10 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
-    # the runner-up is refined briefly on the second-last level's events to measure the margin
+    # the runner-up is refined on the second-last level's events too, to measure the margin, and takes
+    # over where it scores higher there
     w, v = best.w_rad_s, best.v_px_s
-    margin = 1.0
+    margin = gain = 1.0
     for li, level in enumerate(levels[1:], start=1):
         span, _, _, n_ev, iterations, ftol = level
         last = li == len(levels) - 1
@@ -143,19 +165,27 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
                         max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol)
         w, v = best.w_rad_s, best.v_px_s
-        if li == len(levels) - 2 and rival is not None:
-            rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
+        if li == len(levels) - 2:
+            if rival is not None:
+                rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol)
+                if rival.contrast > best.contrast:
+                    best, rival = rival, best
+                    w = best.w_rad_s
             still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False)
-            if _same(rival.w_rad_s, w):
+            gain = 1.0 - still / max(best.contrast, 1e-30)
+            if rival is not None and _same(rival.w_rad_s, w):
                 rival = None
-            else:
+            elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
     final = geometry(levels[-1])
     agreement = _half_agreement(sub, w, v, final)
     coverage_px = float(np.linalg.norm(w)) * window_s * r
     disc_fill = _disc_fill(ev, v)
-    confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
-                       * np.clip(coverage_px / 3.0, 0, 1) * np.clip((disc_fill - 0.45) / 0.2, 0, 1))
+    time_fill = _time_fill(ev)
+    confidence = float(np.clip(gain / 0.1, 0, 1) * np.clip((agreement - 0.2) / 0.4, 0, 1)
+                       * np.clip(margin / 0.05, 0, 1) * np.clip(coverage_px / 3.0, 0, 1)
+                       * np.clip((disc_fill - 0.45) / 0.2, 0, 1)
+                       * np.clip((time_fill - 0.5) / 0.3, 0, 1))
     if not velocity_known:
         # without a tracker velocity the centre motion is itself estimated (and errors in it bend
         # the axis): at most 0.5, less for in-image axes on windows short of a quarter turn, where
@@ -164,4 +194,4 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rotation_rad = float(np.linalg.norm(w)) * window_s
         confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
-                      agreement, margin, coverage_px, disc_fill)
+                      agreement, margin, coverage_px, disc_fill, time_fill)
