@@ -25,9 +25,9 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 def _span_bounds(ev: BallEvents, half_span_s):
     """Index range(s) ``[lo, hi)`` of the time-sorted events with ``|tau| <= half_span_s``."""
-    neg_tau = -ev.tau_s  # ascending for time-sorted events
-    return (np.searchsorted(neg_tau, -np.asarray(half_span_s, dtype=neg_tau.dtype), side="left"),
-            np.searchsorted(neg_tau, np.asarray(half_span_s, dtype=neg_tau.dtype), side="right"))
+    t_ref = ev.s_s[0] + ev.tau_s[0]
+    h = np.asarray(half_span_s, dtype=ev.s_s.dtype)
+    return np.searchsorted(ev.s_s, t_ref - h, side="left"), np.searchsorted(ev.s_s, t_ref + h, side="right")
 
 
 def _span_index(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int):
@@ -35,7 +35,7 @@ def _span_index(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: i
     lo, hi = (int(b) for b in _span_bounds(ev, 0.5 * span_rad / max(omega_rad_s, 1e-9)))
     n = len(ev)
     if hi - lo <= n_events:
-        mid = int(np.searchsorted(-ev.tau_s, 0.0))
+        mid = int(np.searchsorted(ev.s_s, ev.s_s[0] + ev.tau_s[0]))
         start = min(max(mid - n_events // 2, 0), max(n - n_events, 0))
         return np.arange(start, min(start + n_events, n))
     return np.linspace(lo, hi - 1, n_events).astype(np.int64)
@@ -111,8 +111,8 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
     wgt = np.broadcast_to(weight[:, :, None].astype(np.float64), idx.shape)
     img = np.bincount(idx.ravel(), wgt.ravel(), images * h * width).astype(np.float32)
     img = blur(img.reshape(images * h, width), geometry.sigma, geometry.truncate).reshape(images, h * width)
-    mean = img.mean(axis=1, dtype=np.float64)
-    var = np.einsum("ij,ij->i", img, img, dtype=np.float64) / img.shape[1] - mean * mean
+    mean = img.mean(axis=1)
+    var = np.einsum("ij,ij->i", img, img) / img.shape[1] - mean * mean  # float32 sums: ample here
     return var.reshape(r, d + 1)
 
 
