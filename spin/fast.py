@@ -112,7 +112,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
                   coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
-                  refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  refine_velocity: bool | None = None, hemispheres: bool = False,
+                  screen_iterations: int = 2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -144,8 +145,12 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4], ftol=first[5])
+    # every candidate takes a few steps, then the leader goes on to convergence
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5])
                       for w in starts), key=lambda m: -m.contrast)
+    leader = maximise(sub, results[0].w_rad_s, v0, geometry(first), max_iterations=first[4], ftol=first[5],
+                      inverse_hessian=results[0].inverse_hessian)
+    results[0] = leader if leader.contrast >= results[0].contrast else results[0]
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
@@ -163,11 +168,13 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
-                        max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol)
+                        max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
+                        inverse_hessian=best.inverse_hessian)
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2:
             if rival is not None:
-                rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol)
+                rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol,
+                                 inverse_hessian=rival.inverse_hessian)
                 if rival.contrast > best.contrast:
                     best, rival = rival, best
                     w = best.w_rad_s
