@@ -13,7 +13,7 @@ it gives ``d contrast / d w`` (``w = omega * axis``, rad/s) and ``d contrast / d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import cv2
 import numpy as np
@@ -91,6 +91,12 @@ def blur(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
     return cv2.GaussianBlur(image, (k, k), sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
 
 
+@lru_cache(maxsize=64)
+def _raster_constants(h: int, w: int, dtype):
+    """Coordinate limits (2, 1) and the four corners' index offsets (4, 1) of an ``h`` x ``w`` raster."""
+    return np.array([[w - 1.001], [h - 1.001]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+
+
 def _bilinear(uv, weight, shape):
     """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) (changed in place).
 
@@ -98,12 +104,13 @@ def _bilinear(uv, weight, shape):
     weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
     """
     h, w = shape
+    limits, offsets = _raster_constants(h, w, uv.dtype)
     # points pushed off the raster (possible only for wild velocities) are held at its border
-    np.minimum(np.maximum(uv, 0.0, out=uv), np.array([[w - 1.001], [h - 1.001]], dtype=uv.dtype), out=uv)
+    np.minimum(np.maximum(uv, 0.0, out=uv), limits, out=uv)
     base = np.floor(uv)
     frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
     idx = (base[1] * w + base[0]).astype(np.intp)  # exact: the raster has far fewer than 2**24 pixels
-    corners = idx + np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+    corners = idx + offsets
     wgt = weight.astype(np.float32, copy=False)
     b = wgt * frac[1]
     a = wgt - b
@@ -141,9 +148,13 @@ def lift_moving(ev: BallEvents, velocity_px_s):
 
 
 def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
-    """(9, 3) matrix stacking ``scale * (I, [n]x, [n]x^2)`` for a unit axis ``n``."""
-    k = np.array([[0.0, -n[2], n[1]], [n[2], 0.0, -n[0]], [-n[1], n[0], 0.0]])
-    return (scale * np.concatenate([np.eye(3), k, k @ k])).astype(dtype)
+    """(9, 3) matrix stacking ``scale * (I, [n]x, [n]x^2)`` for a unit axis ``n`` ([n]x^2 = n n^T - I)."""
+    x, y, z = (float(c) for c in n)
+    s = float(scale)
+    return np.array([[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, s],
+                     [0.0, -s * z, s * y], [s * z, 0.0, -s * x], [-s * y, s * x, 0.0],
+                     [s * (x * x - 1), s * x * y, s * x * z], [s * x * y, s * (y * y - 1), s * y * z],
+                     [s * x * z, s * y * z, s * (z * z - 1)]], dtype=dtype)
 
 
 def _rotated(p, tau_s, w_rad_s, scale: float):
@@ -229,11 +240,16 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
         return value
     # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point
     g = blur(hs - np.float32(mean), geometry.sigma, geometry.truncate).ravel()[corners]  # (4, N): g00, g01, g10, g11
-    du = a * (g[1] - g[0])
-    du += b * (g[3] - g[2])
-    a = ev.weight.astype(np.float32, copy=False) * frac[0]  # now weight * fu
-    dv = (ev.weight - a) * (g[2] - g[0])
-    dv += a * (g[3] - g[1])
+    d01 = g[1] - g[0]
+    d23 = g[3] - g[2]
+    du = a * d01
+    du += b * d23
+    # dv = weight ((1 - fu) (g10 - g00) + fu (g11 - g01)); (g11 - g01) - (g10 - g00) = d23 - d01
+    d23 -= d01
+    d23 *= frac[0]
+    d23 += g[2]
+    d23 -= g[0]
+    dv = d23 * ev.weight.astype(np.float32, copy=False)
     dt = q.dtype.type
     du = du.astype(dt, copy=False)
     dv = dv.astype(dt, copy=False)
@@ -247,12 +263,14 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     np.multiply(q[2], du, out=acr[1])
     np.multiply(q[0], dv, out=acr[2])
     acr[2] -= q[1] * du
-    safe = phi + (phi == 0)  # b1 and c1 are 0 at phi = 0; float32 rounding near 0 is far below 1
+    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega
     tw = np.empty((3, len(du)), dtype=dt)
     tw[0] = ev.tau_s
-    np.multiply(ev.tau_s / safe, one_cos, out=tw[1])
-    np.multiply(ev.tau_s / safe, phi - sin, out=tw[2])
+    tw[1] = one_cos
+    np.subtract(phi, sin, out=tw[2])
+    omega = float(np.linalg.norm(w_rad_s))
     sums = (tw @ acr.T).astype(np.float64) * (2.0 / size)  # rows A, B, C
+    sums[1:] /= omega if omega > 0 else 1.0  # (B and C are 0 at omega = 0)
     nxb = _axis_cross(n, sums[1])
     nxnxc = _axis_cross(n, _axis_cross(n, sums[2]))
     grad_w = np.array([sums[0, i] - nxb[i] + nxnxc[i] for i in range(3)])
