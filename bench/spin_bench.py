@@ -103,8 +103,8 @@ def bench_rally(seed: int) -> None:
     ok = (a < 5) & (o < 5)
     trusted = c >= 0.5
     print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, "
-          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, time/window mean "
-          f"{1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
+          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, "
+          f"time/window mean {1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
     print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
           f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
 
@@ -184,7 +184,8 @@ def main(argv=None):
         if same_paper:
             ratio = float(np.sum(same_paper) / np.sum(same_fast))
             ratios.append(ratio)
-            print(f"{name:28s} speed ratio paper/fast on the same {len(same_paper)} window(s): {ratio:.0f}x", flush=True)
+            print(f"{name:28s} speed ratio paper/fast on the same {len(same_paper)} window(s): {ratio:.0f}x",
+                  flush=True)
     if ratios:
         print(f"speed ratio paper/fast: median {np.median(ratios):.0f}x over {len(ratios)} row(s)")
     if args.json:

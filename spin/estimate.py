@@ -41,8 +41,9 @@ class SpinEstimate:
         Whether the optimiser met its convergence test.
     confidence : float
         0..1; low when the contrast barely beats no rotation, when a distinct rival
-        solution (other axis or aliased omega) is almost as good, or when the window
-        covers little rotation.
+        solution (other axis or aliased omega) is almost as good, when the window
+        covers little rotation, when little of the ball's rim fires, or when the
+        events come in bursts (a strobe: aliased spins align them equally well).
     method : str
         ``"fast"`` or ``"paper"``.
     """
@@ -90,26 +91,32 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     if np.any(np.diff(events["t"]) < 0):
         events = events[np.argsort(events["t"], kind="stable")]
     t0 = int(events["t"][0]) if t0_us is None else int(t0_us)
-    vx, vy = (float(c) for c in velocity_px_s)
+    f32 = np.float32
+    vx, vy = (f32(c) for c in velocity_px_s)
     t_us = events["t"]
-    s = (t_us - t0).astype(np.float64) * 1e-6
-    x = events["x"].astype(np.float64) - cx
-    y = events["y"].astype(np.float64) - cy
+    # float32 throughout: exact to the microsecond for windows up to 16 s after t0
+    s = (t_us - t0).astype(f32)
+    s *= f32(1e-6)
+    x = events["x"].astype(f32)
+    x -= f32(cx)
+    y = events["y"].astype(f32)
+    y -= f32(cy)
     dx = x - vx * s
     dy = y - vy * s
-    keep = dx * dx + dy * dy <= (rim_fraction * r) ** 2
-    if not keep.any():
+    dx *= dx
+    dy *= dy
+    dx += dy
+    idx = np.flatnonzero(dx <= f32((rim_fraction * r) ** 2))
+    if len(idx) == 0:
         raise SpinInputError(f"circle: no events inside the circle centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px")
-    idx = np.flatnonzero(keep)
     if max_events is not None:
         idx = idx[:max_events]
     if len(idx) < min_events:
         raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
     s = s[idx]
-    t_ref = 0.5 * (s[0] + s[-1])
     # gathers from plain arrays (a structured-array gather costs as much as all the rest)
-    ball = BallEvents(x[idx], y[idx], s, t_ref - s, 2.0 * events["p"][idx].astype(np.float64) - 1.0,
-                      r).astype(np.float32)
+    ball = BallEvents(x[idx], y[idx], s, f32(0.5) * (s[0] + s[-1]) - s,
+                      2 * events["p"][idx].astype(f32) - 1, r)
     return ball, t_us[idx]
 
 
@@ -163,7 +170,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         (:func:`velocity_from_centroids`) and is refined; confidence is then lower
         for spin axes in the image plane on short windows.
     method : {"fast", "paper"}
-        ``"fast"`` (default): coarse search + coarse-to-fine L-BFGS (:mod:`spin.fast`).
+        ``"fast"`` (default): coarse search + coarse-to-fine BFGS (:mod:`spin.fast`).
         ``"paper"``: the seed paper's joint Adam ascent (:mod:`spin.paper`).
     sensor_size : (int, int), optional
         ``(width, height)`` to check the circle against.

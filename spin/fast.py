@@ -1,18 +1,19 @@
-"""The fast spin estimator: global coarse search, then coarse-to-fine L-BFGS.
+"""The fast spin estimator: global coarse search, then coarse-to-fine BFGS.
 
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
-2. The best mutually distinct grid points are refined with L-BFGS
+2. The best mutually distinct grid points are refined with BFGS
    (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
    growing rotation spans and finer IWEs, ending on the whole window at full
    resolution; the velocity stays at the prior unless the window covers enough
    rotation to separate spin from translation.
-3. Confidence: the contrast margin of the winner over the best distinct rival
+3. Confidence: the contrast gain over no rotation, the contrast margin of the winner over the best distinct rival
    (another axis or speed, e.g. an aliased omega of a symmetric texture or the
    mirrored axis) on the second-last level's events, the agreement of the IWEs of
    two halves of the events (structure rather than over-fitted noise), the
-   motion the window covers (pixels travelled at the ball's equator) and how much of
-   the ball's rim fires at all (a ball partly outside the sensor or hidden).
+   motion the window covers (pixels travelled at the ball's equator), how much of
+   the ball's rim fires at all (a ball partly outside the sensor or hidden) and how
+   evenly the events fill the window in time (bursts leave aliased spins possible).
 """
 
 from __future__ import annotations
@@ -25,9 +26,10 @@ from spin.objective import BallEvents, IweGeometry, contrast, iwe
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
-# (rotation span rad, IWE radius px, blur sigma IWE px, events, L-BFGS iterations); the last level
-# uses the whole window and gives its blur in ball pixels.  The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 12.0, 1.2, 500, 8), (6.0, 40.0, 1.0, 2500, 6), (np.inf, 100.0, 0.55, 8000, 6))
+# (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
+# change that ends them); the last level uses the whole window and gives its blur in ball pixels.
+# The IWE scale is capped at ``max_scale``.
+LEVELS = ((2.0, 12.0, 1.2, 500, 8, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 1e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,7 @@ class FastResult:
     margin: float
     coverage_px: float
     disc_fill: float
+    time_fill: float
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
@@ -86,11 +89,31 @@ def _disc_fill(ev: BallEvents, velocity_px_s, n_sectors: int = 16, max_events: i
     return float(np.mean(counts >= 0.15 * counts.mean()))
 
 
+def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_events: int = 8000) -> float:
+    """Fraction of ``n_bins`` equal time bins of the window that hold events (0..1).
+
+    Bins are at least ``min_bin_s`` wide (timestamps are whole microseconds).  A bin
+    counts when it holds at least 10 % of the mean count.  Events bunched in time (a
+    strobe or flickering light: bursts with gaps) leave the motion between bursts
+    unseen, so spins that differ by a texture symmetry's turn per gap align the bursts
+    equally well (aliasing); a continuous stream fills every bin.
+    """
+    tau = ev.tau_s[::max(1, len(ev) // max_events)]
+    span = float(tau[0] - tau[-1])
+    n_bins = int(min(n_bins, span / min_bin_s))
+    if n_bins < 1:
+        return 1.0
+    bins = np.minimum(((tau[0] - tau) * (n_bins / span)).astype(np.int64), n_bins - 1)
+    counts = np.bincount(bins, minlength=n_bins)
+    return float(np.mean(counts >= 0.1 * counts.mean()))
+
+
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
-                  omega_ratio: float = 1.6, n_candidates: int = 2, n_directions: int = 40,
+                  omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
                   coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
-                  refine_velocity: bool | None = None, hemispheres: bool = False) -> FastResult:
+                  refine_velocity: bool | None = None, hemispheres: bool = False,
+                  screen_iterations: int = 2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -122,16 +145,21 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=first[4]) for w in starts),
-                     key=lambda m: -m.contrast)
+    # every candidate takes a few steps, then the leader goes on to convergence
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5])
+                      for w in starts), key=lambda m: -m.contrast)
+    leader = maximise(sub, results[0].w_rad_s, v0, geometry(first), max_iterations=first[4], ftol=first[5],
+                      inverse_hessian=results[0].inverse_hessian)
+    results[0] = leader if leader.contrast >= results[0].contrast else results[0]
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
-    # the runner-up is refined briefly on the second-last level's events to measure the margin
+    # the runner-up is refined on the second-last level's events too, to measure the margin, and takes
+    # over where it scores higher there
     w, v = best.w_rad_s, best.v_px_s
-    margin = 1.0
+    margin = gain = 1.0
     for li, level in enumerate(levels[1:], start=1):
-        span, _, _, n_ev, iterations = level
+        span, _, _, n_ev, iterations, ftol = level
         last = li == len(levels) - 1
         omega = float(np.linalg.norm(w))
         sub = events_for_span(ev, 1e-9 if last else omega, np.inf if last else span, n_ev)
@@ -140,21 +168,31 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
-                        max_iterations=iterations if velocity_known else 3 * iterations)
+                        max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
+                        inverse_hessian=best.inverse_hessian)
         w, v = best.w_rad_s, best.v_px_s
-        if li == len(levels) - 2 and rival is not None:
-            rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations)
+        if li == len(levels) - 2:
+            if rival is not None:
+                rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol,
+                                 inverse_hessian=rival.inverse_hessian)
+                if rival.contrast > best.contrast:
+                    best, rival = rival, best
+                    w = best.w_rad_s
             still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False)
-            if _same(rival.w_rad_s, w):
+            gain = 1.0 - still / max(best.contrast, 1e-30)
+            if rival is not None and _same(rival.w_rad_s, w):
                 rival = None
-            else:
+            elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
-    final = geometry(levels[-1])
-    agreement = _half_agreement(sub, w, v, final)
+    # half agreement at the second-last level's resolution and event count (as telling, 4x cheaper)
+    agreement = _half_agreement(events_for_span(sub, 1e-9, np.inf, levels[-2][3]), w, v, geometry(levels[-2]))
     coverage_px = float(np.linalg.norm(w)) * window_s * r
     disc_fill = _disc_fill(ev, v)
-    confidence = float(np.clip((agreement - 0.2) / 0.4, 0, 1) * np.clip(margin / 0.05, 0, 1)
-                       * np.clip(coverage_px / 3.0, 0, 1) * np.clip((disc_fill - 0.45) / 0.2, 0, 1))
+    time_fill = _time_fill(ev)
+    confidence = float(np.clip(gain / 0.1, 0, 1) * np.clip((agreement - 0.2) / 0.4, 0, 1)
+                       * np.clip(margin / 0.05, 0, 1) * np.clip(coverage_px / 3.0, 0, 1)
+                       * np.clip((disc_fill - 0.45) / 0.2, 0, 1)
+                       * np.clip((time_fill - 0.5) / 0.3, 0, 1))
     if not velocity_known:
         # without a tracker velocity the centre motion is itself estimated (and errors in it bend
         # the axis): at most 0.5, less for in-image axes on windows short of a quarter turn, where
@@ -163,4 +201,4 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rotation_rad = float(np.linalg.norm(w)) * window_s
         confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
-                      agreement, margin, coverage_px, disc_fill)
+                      agreement, margin, coverage_px, disc_fill, time_fill)

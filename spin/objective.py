@@ -13,12 +13,11 @@ it gives ``d contrast / d w`` (``w = omega * axis``, rad/s) and ``d contrast / d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import cv2
 import numpy as np
 
-from spin.warp import rotate
 
 
 @dataclass(frozen=True)
@@ -62,7 +61,8 @@ class BallEvents:
 class IweGeometry:
     """Raster of the IWE: ``scale`` pixels per ball pixel, Gaussian ``sigma`` (IWE px).
 
-    With ``hemispheres`` the points rotated to the far side (``z > 0``) go to a
+    The Gaussian kernel reaches ``truncate`` sigmas; the raster's margin around the disc
+    as far plus 2 px.  With ``hemispheres`` the points rotated to the far side (``z > 0``) go to a
     second disc beside the first, so front and back textures do not overlap.
     """
 
@@ -70,10 +70,11 @@ class IweGeometry:
     scale: float = 1.0
     sigma: float = 1.0
     hemispheres: bool = False
+    truncate: float = 3.0
 
     @cached_property
     def pad(self) -> int:
-        return int(np.ceil(3.0 * self.sigma)) + 2
+        return int(np.ceil(self.truncate * self.sigma)) + 2
 
     @cached_property
     def size(self) -> int:
@@ -83,81 +84,115 @@ class IweGeometry:
     def shape(self) -> tuple[int, int]:
         return (self.size, 2 * self.size if self.hemispheres else self.size)
 
-    def to_iwe(self, px, py, pz):
-        """IWE coordinates (u, v) of points given relative to the ball centre (px)."""
-        dt = np.result_type(px).type
-        off = dt(self.radius_px * self.scale + self.pad)
-        u = px * dt(self.scale) + off
-        if self.hemispheres:
-            u = u + (pz > 0) * self.size
-        return u, py * dt(self.scale) + off
 
-
-def blur(image: np.ndarray, sigma: float) -> np.ndarray:
-    k = 2 * int(np.ceil(3.0 * sigma)) + 1
+def blur(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """Gaussian blur (zero outside the image), kernel to ``truncate`` sigmas."""
+    k = 2 * int(np.ceil(truncate * sigma)) + 1
     return cv2.GaussianBlur(image, (k, k), sigma, sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
 
 
-def _corners(u, v, width, height):
+@lru_cache(maxsize=64)
+def _raster_constants(h: int, w: int, dtype):
+    """Coordinate limits (2, 1) and the four corners' index offsets (4, 1) of an ``h`` x ``w`` raster."""
+    return np.array([[w - 1.001], [h - 1.001]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+
+
+def _bilinear(uv, weight, shape):
+    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) (changed in place).
+
+    Returns the image (float32, ``shape``), the four corners' flat indices (4, N) and the
+    weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
+    """
+    h, w = shape
+    limits, offsets = _raster_constants(h, w, uv.dtype)
     # points pushed off the raster (possible only for wild velocities) are held at its border
-    u = np.minimum(np.maximum(u, 0.0), width - 1.001)  # (np.clip costs more than both)
-    v = np.minimum(np.maximum(v, 0.0), height - 1.001)
-    iu = np.floor(u)
-    iv = np.floor(v)
-    fu = (u - iu).astype(np.float32, copy=False)
-    fv = (v - iv).astype(np.float32, copy=False)
-    idx = iv.astype(np.int64) * width + iu.astype(np.int64)
-    return idx, fu, fv
+    np.minimum(np.maximum(uv, 0.0, out=uv), limits, out=uv)
+    base = np.floor(uv)
+    frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
+    idx = (base[1] * w + base[0]).astype(np.intp)  # exact: the raster has far fewer than 2**24 pixels
+    corners = idx + offsets
+    wgt = weight.astype(np.float32, copy=False)
+    b = wgt * frac[1]
+    a = wgt - b
+    votes = np.empty((4, len(wgt)), dtype=np.float64)  # what bincount takes without a copy
+    np.multiply(a, frac[0], out=votes[1])
+    np.subtract(a, votes[1], out=votes[0])
+    np.multiply(b, frac[0], out=votes[3])
+    np.subtract(b, votes[3], out=votes[2])
+    img = np.bincount(corners.ravel(), votes.ravel(), h * w).astype(np.float32).reshape(h, w)
+    return img, corners, frac, a, b
 
 
 def vote(u, v, weight, shape) -> np.ndarray:
     """Bilinear voting of ``weight`` (N,) at IWE coordinates ``(u, v)`` (N,); float32 image of ``shape``."""
-    h, w = shape
-    return _vote_corners(*_corners(u, v, w, h), weight, shape)
-
-
-def _vote_corners(idx, fu, fv, weight, shape) -> np.ndarray:
-    h, w = shape
-    wgt = weight.astype(np.float32, copy=False)
-    b = wgt * fv
-    a = wgt - b
-    bu = b * fu
-    au = a * fu
-    # the four corners' votes in one pass
-    img = np.bincount(np.concatenate([idx, idx + 1, idx + w, idx + (w + 1)]),
-                      np.concatenate([a - au, au, b - bu, bu]), h * w)
-    return img.astype(np.float32).reshape(h, w)
+    return _bilinear(np.array([u, v]), weight, shape)[0]
 
 
 def lift_moving(ev: BallEvents, velocity_px_s):
-    """Sphere points (component tuple) at the events' times for centre velocity ``velocity_px_s``.
+    """Sphere points (3, N) at the events' times for centre velocity ``velocity_px_s`` (px, centre-relative).
 
     Also returns ``dz/ddx`` and ``dz/ddy`` factors (``dx/sqrt(r^2-d^2)``), zero where clamped.
     """
     vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
-    dx = ev.x_px - vx * ev.s_s
-    dy = ev.y_px - vy * ev.s_s
+    p = np.empty((3, len(ev)), dtype=ev.x_px.dtype)
+    dx = np.subtract(ev.x_px, vx * ev.s_s, out=p[0])
+    dy = np.subtract(ev.y_px, vy * ev.s_s, out=p[1])
     r2 = dx.dtype.type(ev.radius_px * ev.radius_px)
     zq = r2 - dx * dx - dy * dy
     floor = dx.dtype.type(0.01) * r2
     clamped = zq < floor
     root = np.sqrt(np.maximum(zq, floor))
+    np.negative(root, out=p[2])
     inv = np.where(clamped, 0.0, 1.0 / root).astype(dx.dtype)
-    return (dx, dy, -root), dx * inv, dy * inv
+    return p, dx * inv, dy * inv
 
 
-def warp(ev: BallEvents, w_rad_s, velocity_px_s):
-    """Points (component tuple, px, relative to the centre) rotated to ``t_ref``."""
+def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
+    """(9, 3) matrix stacking ``scale * (I, [n]x, [n]x^2)`` for a unit axis ``n`` ([n]x^2 = n n^T - I)."""
+    x, y, z = (float(c) for c in n)
+    s = float(scale)
+    return np.array([[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, s],
+                     [0.0, -s * z, s * y], [s * z, 0.0, -s * x], [-s * y, s * x, 0.0],
+                     [s * (x * x - 1), s * x * y, s * x * z], [s * x * y, s * (y * y - 1), s * y * z],
+                     [s * x * z, s * y * z, s * (z * z - 1)]], dtype=dtype)
+
+
+def _rotated(p, tau_s, w_rad_s, scale: float):
+    """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|``, times ``scale``; also n, phi, sin, 1 - cos."""
+    w = np.asarray(w_rad_s, dtype=np.float64)
+    omega = float(np.sqrt(np.dot(w, w)))
+    n = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
+    dt = tau_s.dtype.type
+    phi = tau_s * dt(omega)
+    sin = np.sin(phi)
+    one_cos = 1 - np.cos(phi)
+    # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9, 3) product
+    terms = _rotation_rows(n, scale, p.dtype) @ p
+    q = terms[0:3]
+    q += sin * terms[3:6]
+    q += one_cos * terms[6:9]
+    return q, n, phi, sin, one_cos
+
+
+def warp(ev: BallEvents, w_rad_s, velocity_px_s) -> np.ndarray:
+    """Points (3, N), px relative to the centre, rotated to ``t_ref``."""
     p, _, _ = lift_moving(ev, velocity_px_s)
-    theta = tuple(ev.tau_s * np.asarray(w_rad_s[i], dtype=ev.tau_s.dtype) for i in range(3))
-    return rotate(p, theta)
+    return _rotated(p, ev.tau_s, w_rad_s, 1.0)[0]
+
+
+def _iwe_coords(q, geometry: IweGeometry):
+    """IWE coordinates (2, N) of scaled points ``q`` (3, N) relative to the centre."""
+    uv = q[:2] + q.dtype.type(geometry.radius_px * geometry.scale + geometry.pad)
+    if geometry.hemispheres:
+        uv[0] += (q[2] > 0) * q.dtype.type(geometry.size)
+    return uv
 
 
 def iwe(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry) -> np.ndarray:
     """Smoothed image of warped events, float32 of ``geometry.shape``."""
-    q = warp(ev, w_rad_s, velocity_px_s)
-    u, v = geometry.to_iwe(*q)
-    return blur(vote(u, v, ev.weight, geometry.shape), geometry.sigma)
+    q = _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, geometry.scale)[0]
+    return blur(_bilinear(_iwe_coords(q, geometry), ev.weight, geometry.shape)[0], geometry.sigma,
+                geometry.truncate)
 
 
 def _axis_cross(n, a):
@@ -191,59 +226,62 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     grad_w : ndarray (3,)  (only with ``gradient``)
     grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
-    dt = ev.tau_s.dtype.type
     p, dzdx, dzdy = lift_moving(ev, velocity_px_s) if lifted is None else lifted
-    w = np.asarray(w_rad_s, dtype=np.float64)
-    omega = float(np.sqrt(np.dot(w, w)))
-    n = tuple(dt(c) for c in (w / omega if omega > 0 else (0.0, 0.0, 1.0)))
-    phi = ev.tau_s * dt(omega)
-    sin, one_cos = np.sin(phi), 1 - np.cos(phi)
-    nxp = _axis_cross(n, p)
-    nxnxp = _axis_cross(n, nxp)
-    q = tuple(p[i] + sin * nxp[i] + one_cos * nxnxp[i] for i in range(3))
-    u, v = geometry.to_iwe(*q)
+    # q in IWE pixels (scaled), relative to the centre
+    q, n, phi, sin, one_cos = _rotated(p, ev.tau_s, w_rad_s, geometry.scale)
+    uv = _iwe_coords(q, geometry)
     h, width = geometry.shape
     size = h * width
-    idx, fu, fv = _corners(u, v, width, h)
-    hs = blur(_vote_corners(idx, fu, fv, ev.weight, geometry.shape), geometry.sigma)
-    flat = hs.ravel().astype(np.float64)
-    mean = float(flat.sum()) / size
-    value = float(np.dot(flat, flat)) / size - mean * mean
+    img, corners, frac, a, b = _bilinear(uv, ev.weight, geometry.shape)
+    hs = blur(img, geometry.sigma, geometry.truncate)
+    mean = cv2.sumElems(hs)[0] / size
+    value = cv2.norm(hs, cv2.NORM_L2SQR) / size - mean * mean
     if not gradient:
         return value
-    g = blur(hs - mean, geometry.sigma).ravel() * (2.0 / size)
-    wgt = ev.weight.astype(np.float32, copy=False) * np.float32(geometry.scale)
-    g00, g01, g10, g11 = g[idx], g[idx + 1], g[idx + width], g[idx + width + 1]
-    d0 = g01 - g00
-    d1 = g11 - g10
-    du = (wgt * (d0 + fv * (d1 - d0))).astype(dt, copy=False)
-    e0 = g10 - g00
-    e1 = g11 - g01
-    dv = (wgt * (e0 + fu * (e1 - e0))).astype(dt, copy=False)
+    # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point
+    g = blur(hs - np.float32(mean), geometry.sigma, geometry.truncate).ravel()[corners]  # (4, N): g00, g01, g10, g11
+    d01 = g[1] - g[0]
+    d23 = g[3] - g[2]
+    du = a * d01
+    du += b * d23
+    # dv = weight ((1 - fu) (g10 - g00) + fu (g11 - g01)); (g11 - g01) - (g10 - g00) = d23 - d01
+    d23 -= d01
+    d23 *= frac[0]
+    d23 += g[2]
+    d23 -= g[0]
+    dv = d23 * ev.weight.astype(np.float32, copy=False)
+    dt = q.dtype.type
+    du = du.astype(dt, copy=False)
+    dv = dv.astype(dt, copy=False)
     # d f / d theta_k = J_l(theta_k)^T a_k with a_k = q_k x (du, dv, 0) and theta_k = phi_k n:
     # J_l^T a = a - (1 - cos)/phi n x a + (1 - sin/phi) n x (n x a); d theta_k / d w = tau_k (for the
     # part along n; the same J_l form covers the perpendicular part), so
     # d f / d w = A - n x B + n x (n x C) with A, B, C the tau-weighted sums below
-    a = (-q[2] * dv, q[2] * du, q[0] * dv - q[1] * du)
-    safe = phi + (phi == 0)  # b1 and c1 are 0 at phi = 0; float32 rounding near 0 is far below 1
-    b1 = one_cos / safe
-    c1 = (phi - sin) / safe
-    tb = ev.tau_s * b1
-    tc = ev.tau_s * c1
-    big_a = [float(np.dot(ev.tau_s, a[i])) for i in range(3)]
-    big_b = [float(np.dot(tb, a[i])) for i in range(3)]
-    big_c = [float(np.dot(tc, a[i])) for i in range(3)]
-    nn = tuple(float(c) for c in n)
-    nxb = _axis_cross(nn, big_b)
-    nxnxc = _axis_cross(nn, _axis_cross(nn, big_c))
-    grad_w = np.array([big_a[i] - nxb[i] + nxnxc[i] for i in range(3)])
+    acr = np.empty((3, len(du)), dtype=dt)
+    np.multiply(q[2], dv, out=acr[0])
+    np.negative(acr[0], out=acr[0])
+    np.multiply(q[2], du, out=acr[1])
+    np.multiply(q[0], dv, out=acr[2])
+    acr[2] -= q[1] * du
+    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega
+    tw = np.empty((3, len(du)), dtype=dt)
+    tw[0] = ev.tau_s
+    tw[1] = one_cos
+    np.subtract(phi, sin, out=tw[2])
+    omega = float(np.linalg.norm(w_rad_s))
+    sums = (tw @ acr.T).astype(np.float64) * (2.0 / size)  # rows A, B, C
+    sums[1:] /= omega if omega > 0 else 1.0  # (B and C are 0 at omega = 0)
+    nxb = _axis_cross(n, sums[1])
+    nxnxc = _axis_cross(n, _axis_cross(n, sums[2]))
+    grad_w = np.array([sums[0, i] - nxb[i] + nxnxc[i] for i in range(3)])
     if not velocity_gradient:
         return value, grad_w, np.zeros(2)
-    # d f / d p_k = R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
+    # d f / d p_k = scale R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
     gq = (du, dv, np.zeros_like(du))
-    nxg = _axis_cross(n, gq)
-    nxnxg = _axis_cross(n, nxg)
+    nd = tuple(dt(c) for c in n)
+    nxg = _axis_cross(nd, gq)
+    nxnxg = _axis_cross(nd, nxg)
     gp = tuple(gq[i] - sin * nxg[i] + one_cos * nxnxg[i] for i in range(3))
     grad_v = np.array([-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)],
-                      dtype=np.float64)
+                      dtype=np.float64) * (2.0 * geometry.scale / size)
     return value, grad_w, grad_v

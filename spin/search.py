@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, blur, iwe, lift_moving
+from spin.objective import BallEvents, IweGeometry, blur
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -25,9 +25,20 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 def _span_bounds(ev: BallEvents, half_span_s):
     """Index range(s) ``[lo, hi)`` of the time-sorted events with ``|tau| <= half_span_s``."""
-    neg_tau = -ev.tau_s  # ascending for time-sorted events
-    return (np.searchsorted(neg_tau, -np.asarray(half_span_s, dtype=neg_tau.dtype), side="left"),
-            np.searchsorted(neg_tau, np.asarray(half_span_s, dtype=neg_tau.dtype), side="right"))
+    t_ref = ev.s_s[0] + ev.tau_s[0]
+    h = np.asarray(half_span_s, dtype=ev.s_s.dtype)
+    return np.searchsorted(ev.s_s, t_ref - h, side="left"), np.searchsorted(ev.s_s, t_ref + h, side="right")
+
+
+def _span_index(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int):
+    """Index (slice or array) of :func:`events_for_span`'s events."""
+    lo, hi = (int(b) for b in _span_bounds(ev, 0.5 * span_rad / max(omega_rad_s, 1e-9)))
+    n = len(ev)
+    if hi - lo <= n_events:
+        mid = int(np.searchsorted(ev.s_s, ev.s_s[0] + ev.tau_s[0]))
+        start = min(max(mid - n_events // 2, 0), max(n - n_events, 0))
+        return np.arange(start, min(start + n_events, n))
+    return np.linspace(lo, hi - 1, n_events).astype(np.int64)
 
 
 def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int) -> BallEvents:
@@ -37,68 +48,86 @@ def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_event
     (a contiguous block), evenly subsampled to ``n_events``; where that span holds
     fewer, the block of ``n_events`` centred on ``t_ref``.
     """
-    lo, hi = (int(b) for b in _span_bounds(ev, 0.5 * span_rad / max(omega_rad_s, 1e-9)))
-    if hi - lo <= n_events:
-        n = len(ev)
-        mid = int(np.searchsorted(-ev.tau_s, 0.0))
-        start = min(max(mid - n_events // 2, 0), max(n - n_events, 0))
-        return ev.take(slice(start, start + n_events))
-    return ev.take(np.linspace(lo, hi - 1, n_events).astype(np.int64))
+    return ev.take(_span_index(ev, omega_rad_s, span_rad, n_events))
 
 
-def score_rows(subsets: list[BallEvents], omegas_rad_s: np.ndarray, directions: np.ndarray, velocity_px_s,
-               geometry: IweGeometry) -> np.ndarray:
-    """IWE variance for angular velocities ``omega_r * direction_d``; returns (R, D).
+def _lift_rows(ev: BallEvents, index: np.ndarray, velocity_px_s, dtype=np.float32):
+    """Lifted points (N, R, 3), ``tau`` and weights (N, R) of the events ``index`` (R, N)."""
+    x, y, s = (a[index].T for a in (ev.x_px, ev.y_px, ev.s_s))
+    vx, vy = (s.dtype.type(c) for c in velocity_px_s)
+    pts = np.empty((*x.shape, 3), dtype=dtype)
+    dx = np.subtract(x, vx * s, out=pts[..., 0])
+    dy = np.subtract(y, vy * s, out=pts[..., 1])
+    r2 = ev.radius_px * ev.radius_px
+    np.negative(np.sqrt(np.maximum(r2 - dx * dx - dy * dy, 0.01 * r2)), out=pts[..., 2])
+    return pts, ev.tau_s[index].T.astype(dtype), ev.weight[index].T.astype(np.float32)
 
-    Row ``r`` (speed ``omegas_rad_s[r]``) uses the events ``subsets[r]``; all subsets hold the
-    same number of events.  Exact rotation broadcast over events x rows x directions,
-    nearest-pixel voting into stacked small IWEs (enough at this resolution: the blur
-    does the rest).
+
+def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_rad_s: np.ndarray,
+               directions: np.ndarray, geometry: IweGeometry) -> np.ndarray:
+    """IWE variance for angular velocities ``omega_r * direction_d`` and for no rotation; returns (R, D + 1).
+
+    Row ``r`` (speed ``omegas_rad_s[r]``) uses the lifted events ``pts[:, r]`` ((N, R, 3), times
+    ``tau_s`` (N, R), weights (N, R)).  Exact rotation broadcast over events x rows x
+    directions, nearest-pixel voting into stacked small IWEs (enough at this resolution: the
+    blur does the rest); the last column is the variance without rotation.
     """
     dt = np.float32
-    pts = np.stack([np.stack(lift_moving(ev, velocity_px_s)[0], axis=1) for ev in subsets], axis=1).astype(dt)
-    tau = np.stack([ev.tau_s for ev in subsets], axis=1).astype(dt)  # (N, R)
     n = np.asarray(directions, dtype=np.float64)
-    phi = tau[:, :, None] * np.asarray(omegas_rad_s, dtype=dt)[None, :, None]  # (N, R, D)
+    phi = tau_s[:, :, None] * np.asarray(omegas_rad_s, dtype=dt)[None, :, None]  # (N, R, 1)
     sin = np.sin(phi)
     one_cos = 1 - np.cos(phi)
     # q = p + sin(phi) n x p + (1 - cos(phi)) (n (n . p) - p): both terms are linear in p, so each
-    # component is p @ (3, D) with the matrices of p -> n x p and p -> n (n . p) - p
+    # component is p @ (3, D) with the matrices of p -> n x p and p -> n (n . p) - p; the
+    # coordinates are scaled to IWE pixels on the way
     zero = np.zeros_like(n[:, 0])
     cross = (np.stack([zero, -n[:, 2], n[:, 1]]), np.stack([n[:, 2], zero, -n[:, 0]]),
              np.stack([-n[:, 1], n[:, 0], zero]))
     eye = np.eye(3)
     comps = (0, 1, 2) if geometry.hemispheres else (0, 1)
     mats = np.concatenate([m for k in comps for m in (cross[k], n.T * n[:, k][None, :] - eye[:, k:k + 1])],
-                          axis=1).astype(dt)
+                          axis=1) * geometry.scale
     # einsum, not BLAS (whose threads only slow this size down)
-    terms = np.einsum("nrk,kc->nrc", pts, mats)
+    terms = np.einsum("nrk,kc->nrc", pts, mats.astype(dt))
     d = len(n)
-    q = [pts[:, :, k:k + 1] + sin * terms[:, :, 2 * i * d:(2 * i + 1) * d]
-         + one_cos * terms[:, :, (2 * i + 1) * d:(2 * i + 2) * d] for i, k in enumerate(comps)]
-    qx, qy, qz = q[0], q[1], (q[2] if geometry.hemispheres else None)
-    u, v = geometry.to_iwe(qx, qy, qz)
+    off = dt(geometry.radius_px * geometry.scale + geometry.pad + 0.5)  # + 0.5: truncation rounds
+    q = []
+    for i, k in enumerate(comps):
+        c = np.empty((*pts.shape[:2], d + 1), dtype=dt)
+        base = pts[:, :, k:k + 1] * dt(geometry.scale) + (off if k < 2 else dt(0.0))
+        np.multiply(sin, terms[:, :, 2 * i * d:(2 * i + 1) * d], out=c[:, :, :d])
+        c[:, :, :d] += one_cos * terms[:, :, (2 * i + 1) * d:(2 * i + 2) * d]
+        c[:, :, :d] += base
+        c[:, :, d:] = base
+        q.append(c)
     h, width = geometry.shape
-    r = len(subsets)
-    c = r * d
-    idx = ((v + 0.5).astype(np.int32) * width + (u + 0.5).astype(np.int32)
-           + (np.arange(c, dtype=np.int32) * (h * width)).reshape(1, r, d))
-    weight = np.stack([ev.weight for ev in subsets], axis=1).astype(np.float32)
-    wgt = np.broadcast_to(weight[:, :, None], idx.shape)
-    img = np.bincount(idx.ravel(), wgt.ravel(), c * h * width).astype(np.float32)
-    img = blur(img.reshape(c * h, width), geometry.sigma).reshape(c, h * width)
-    mean = img.mean(axis=1, dtype=np.float64)
-    var = np.einsum("ij,ij->i", img, img, dtype=np.float64) / img.shape[1] - mean * mean
-    return var.reshape(r, d)
+    r = pts.shape[1]
+    images = r * (d + 1)
+    u = q[0]
+    if geometry.hemispheres:
+        u += (q[2] > 0) * dt(geometry.size)
+    idx = (q[1].astype(np.int32) * width + u.astype(np.int32)
+           + (np.arange(images, dtype=np.int32) * (h * width)).reshape(1, r, d + 1))
+    wgt = np.broadcast_to(weight[:, :, None].astype(np.float64), idx.shape)
+    img = np.bincount(idx.ravel(), wgt.ravel(), images * h * width).astype(np.float32)
+    img = blur(img.reshape(images * h, width), geometry.sigma, geometry.truncate).reshape(images, h * width)
+    mean = img.mean(axis=1)
+    var = np.einsum("ij,ij->i", img, img) / img.shape[1] - mean * mean  # float32 sums: ample here
+    return var.reshape(r, d + 1)
 
 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
-                  hemispheres: bool = False, rows_per_call: int = 4):
+                  truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 4,
+                  min_rotation_rad: float = 0.1):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
 
-    Rows whose rotation span covers the same events share the event subset.
+    Speeds that turn the ball by less than ``min_rotation_rad`` over the whole window
+    are left out but for the fastest of them (they cannot be told apart from it).
+
+    Row ``omega`` uses ``n_events`` events spanning ``span_rad`` of rotation about ``t_ref``
+    (:func:`events_for_span`).
 
     Returns
     -------
@@ -110,21 +139,18 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     """
     n_omega = int(np.ceil(np.log(omega_max_rad_s / omega_min_rad_s) / np.log(omega_ratio))) + 1
     omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
+    window_s = max(float(ev.tau_s[0] - ev.tau_s[-1]), 1e-9)
+    omegas = omegas[max(0, int(np.searchsorted(omegas * window_s, min_rotation_rad)) - 1):]
+    n_omega = len(omegas)
     directions = fibonacci_sphere(n_directions)
-    geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres)
-    # rows with at most n_events inside their span all use the n_events nearest to t_ref
-    lo, hi = _span_bounds(ev, 0.5 * span_rad / omegas)
-    keys = np.maximum(hi - lo, n_events)
-    subsets, stills = {}, {}
-    for key in np.unique(keys):
-        i = int(np.flatnonzero(keys == key)[0])
-        subsets[key] = sub = events_for_span(ev, float(omegas[i]), span_rad, n_events)
-        stills[key] = max(float(iwe(sub, np.zeros(3), velocity_px_s, geometry).var(dtype=np.float64)), 1e-30)
+    geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate)
+    index = np.stack([_span_index(ev, float(om), span_rad, n_events) for om in omegas])  # (M, n)
+    pts, tau, weight = _lift_rows(ev, index, velocity_px_s)
     scores = np.empty((n_omega, n_directions))
     for k in range(0, n_omega, rows_per_call):  # a few rows at a time: the arrays stay in cache
-        part = np.arange(k, min(k + rows_per_call, n_omega))
-        raw = score_rows([subsets[key] for key in keys[part]], omegas[part], directions, velocity_px_s, geometry)
-        scores[part] = raw / np.array([stills[key] for key in keys[part]])[:, None]
+        part = slice(k, min(k + rows_per_call, n_omega))
+        raw = score_rows(pts[:, part], tau[:, part], weight[:, part], omegas[part], directions, geometry)
+        scores[part] = raw[:, :-1] / np.maximum(raw[:, -1:], 1e-30)
     return omegas, directions, scores
 
 
