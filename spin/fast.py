@@ -2,18 +2,21 @@
 
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
-2. The best mutually distinct grid points are refined with BFGS
-   (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
-   growing rotation spans and finer IWEs, ending on the whole window at full
-   resolution; the velocity stays at the prior unless the window covers enough
+2. The best mutually distinct grid points take a few BFGS steps (:mod:`spin.refine`)
+   on a small IWE and the leader is refined on; it is then refined over growing
+   rotation spans and finer IWEs, ending on the whole window at full resolution,
+   each level starting from the previous level's inverse-Hessian estimate; the
+   runner-up is refined on the second-last level too and takes over if it scores
+   higher there.  The velocity stays at the prior unless the window covers enough
    rotation to separate spin from translation.
-3. Confidence: the contrast gain over no rotation, the contrast margin of the winner over the best distinct rival
-   (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) on the second-last level's events, the agreement of the IWEs of
-   two halves of the events (structure rather than over-fitted noise), the
-   motion the window covers (pixels travelled at the ball's equator), how much of
-   the ball's rim fires at all (a ball partly outside the sensor or hidden) and how
-   evenly the events fill the window in time (bursts leave aliased spins possible).
+3. Confidence: the contrast gain over no rotation, the contrast margin of the winner
+   over the best distinct rival (another axis or speed, e.g. an aliased omega of a
+   symmetric texture or the mirrored axis) on the second-last level's events, the
+   agreement of the IWEs of two halves of the events (structure rather than
+   over-fitted noise), the motion the window covers (pixels travelled at the ball's
+   equator), how much of the ball's rim fires at all (a ball partly outside the
+   sensor or hidden) and how evenly the events fill the window in time (bursts leave
+   aliased spins possible).
 """
 
 from __future__ import annotations
@@ -127,6 +130,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         Refine v on the last level; ``None``: when the window spans at least half a
         revolution (where rotation about an in-image axis no longer mimics
         translation) or no prior is known.
+    screen_iterations : int
+        BFGS iterations each coarse candidate takes before the leader is refined on.
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
