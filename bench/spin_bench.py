@@ -79,34 +79,42 @@ def summarise(rows):
 RALLY_SPINS = [((0.0, 0.0, -1.0), 30.0), ((1.0, 0.0, 0.0), 60.0), ((0.3, -0.8, 0.5), 100.0), ((0.0, 1.0, 0.0), 15.0)]
 
 
-def rally_windows(seed: int):
-    """Spin windows as a replay cuts them: ``sim.rally`` flights (r = 36 px, ~4,500 px/s), truth track."""
+def rally_flights(seed: int):
+    """Spin windows as a replay cuts them: ``sim.rally`` flights (r = 36 px, ~4,500 px/s), truth track.
+
+    Yields ``(name, windows, truth)`` per simulated flight.
+    """
     from detect.track import spin_windows
 
     for k, (axis, rps) in enumerate(RALLY_SPINS):
         rec = sim.rally(seed=seed + k, rps=rps, axis=axis, duration_s=0.3, fps=None, sync=False)
         truth = {"axis": np.asarray(axis) / np.linalg.norm(axis), "omega_rad_s": 2 * np.pi * rps}
-        for win in spin_windows(rec.events, rec.truth_track(), window_us=2000, step_us=20000, max_window_us=20000,
-                                min_events=1500, max_events=30000):
-            yield f"rally {rps:g}rps axis {axis}", win, truth
+        windows = list(spin_windows(rec.events, rec.truth_track(), window_us=2000, step_us=20000,
+                                    max_window_us=20000, min_events=1500, max_events=30000))
+        yield f"rally {rps:g}rps axis {axis}", windows, truth
 
 
 def bench_rally(seed: int) -> None:
-    """Fast method on replay-like windows: errors, success, time per window, confidence of failures."""
-    rows = []
-    for name, win, truth in rally_windows(seed):
-        t = time.perf_counter()
-        est = spin.estimate_windows([win])[0]
-        dt = time.perf_counter() - t
-        rows.append((*errors(est.axis, est.omega_rad_s, truth), dt, est.confidence, len(win.events)))
-    a, o, t, c, n = (np.array(x) for x in zip(*rows))
-    ok = (a < 5) & (o < 5)
-    trusted = c >= 0.5
-    print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, "
-          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, "
-          f"time/window mean {1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
-    print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
-          f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
+    """Fast method on replay-like windows, each flight's windows in order as a replay runs them, without
+    and with the warm start from the previous window: errors, success, time per window, confidence of failures.
+    """
+    rows = {False: [], True: []}
+    for name, windows, truth in rally_flights(seed):
+        for warm in (False, True):
+            t = time.perf_counter()
+            ests = spin.estimate_windows(windows, skip_errors=False, warm_start=warm)
+            dt = (time.perf_counter() - t) / len(windows)
+            rows[warm] += [(*errors(e.axis, e.omega_rad_s, truth), dt, e.confidence, len(w.events))
+                           for e, w in zip(ests, windows)]
+    for warm, vals in rows.items():
+        a, o, t, c, n = (np.array(x) for x in zip(*vals))
+        ok = (a < 5) & (o < 5)
+        trusted = c >= 0.5
+        print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events), warm start {'on ' if warm else 'off'}: "
+              f"n {len(a)}, axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, "
+              f"success {100 * ok.mean():.1f} %, time/window {1e3 * t.mean():.1f} ms (per-flight mean)")
+        print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
+              f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
 
 
 def main(argv=None):

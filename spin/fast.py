@@ -116,7 +116,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
                   coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
                   refine_velocity: bool | None = None, hemispheres: bool = False,
-                  screen_iterations: int = 2) -> FastResult:
+                  screen_iterations: int = 2, prior_w_rad_s=None, prior_span: float = 2.2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -132,13 +132,26 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         translation) or no prior is known.
     screen_iterations : int
         BFGS iterations each coarse candidate takes before the leader is refined on.
+    prior_w_rad_s : (3,), optional
+        A trusted estimate of a neighbouring window of the same flight (rad/s): it joins the
+        candidates and the coarse search keeps to speeds within a factor ``prior_span`` of it
+        (which still holds omega/2 and 2 omega, the aliases of symmetric textures).
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
+    prior = None if prior_w_rad_s is None else np.asarray(prior_w_rad_s, dtype=np.float64)
+    if prior is not None and np.linalg.norm(prior) > 0:
+        omega_prior = float(np.linalg.norm(prior))
+        omega_min_rad_s = max(omega_min_rad_s, omega_prior / prior_span)
+        omega_max_rad_s = max(min(omega_max_rad_s, omega_prior * prior_span), omega_min_rad_s * omega_ratio)
+    else:
+        prior = None
     omegas, directions, scores = coarse_search(
         ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
+    if prior is not None:
+        starts = [prior] + [w for w in starts if not _same(w, prior, 30.0, 1.3)][:n_candidates - 1]
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
 
     def geometry(level):
