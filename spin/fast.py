@@ -114,7 +114,7 @@ def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_ev
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
-                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
+                  coarse_events: int = 300, levels=LEVELS, max_scale: float = 2.0,
                   refine_velocity: bool | None = None, hemispheres: bool = False,
                   screen_iterations: int = 2, prior_w_rad_s=None, prior_span: float = 2.2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
