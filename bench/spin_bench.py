@@ -9,7 +9,9 @@ Tamaki et al.) at 60/120/240/480 fps on sharp rendered frames of the same ball.
 
 Prints per row and method: median/mean axis error (deg), median/mean omega error
 (%), success rate (axis < 5 deg and omega < 5 %), mean and median time per estimate, and the
-speed ratio paper/fast measured on the same sequences in this run.
+speed ratio paper/fast measured on the same sequences in this run.  Times are CPU time of
+this process on one core (OpenCV and BLAS held to one thread, as replay workers run), so
+the load of other processes on the machine does not skew the ratio.
 
     python bench/spin_bench.py --quick          # a few minutes
     python bench/spin_bench.py --rally          # replay-like windows only (r = 36 px, tracker velocity)
@@ -26,6 +28,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 import sim  # noqa: E402
@@ -79,34 +82,42 @@ def summarise(rows):
 RALLY_SPINS = [((0.0, 0.0, -1.0), 30.0), ((1.0, 0.0, 0.0), 60.0), ((0.3, -0.8, 0.5), 100.0), ((0.0, 1.0, 0.0), 15.0)]
 
 
-def rally_windows(seed: int):
-    """Spin windows as a replay cuts them: ``sim.rally`` flights (r = 36 px, ~4,500 px/s), truth track."""
+def rally_flights(seed: int):
+    """Spin windows as a replay cuts them: ``sim.rally`` flights (r = 36 px, ~4,500 px/s), truth track.
+
+    Yields ``(name, windows, truth)`` per simulated flight.
+    """
     from detect.track import spin_windows
 
     for k, (axis, rps) in enumerate(RALLY_SPINS):
         rec = sim.rally(seed=seed + k, rps=rps, axis=axis, duration_s=0.3, fps=None, sync=False)
         truth = {"axis": np.asarray(axis) / np.linalg.norm(axis), "omega_rad_s": 2 * np.pi * rps}
-        for win in spin_windows(rec.events, rec.truth_track(), window_us=2000, step_us=20000, max_window_us=20000,
-                                min_events=1500, max_events=30000):
-            yield f"rally {rps:g}rps axis {axis}", win, truth
+        windows = list(spin_windows(rec.events, rec.truth_track(), window_us=2000, step_us=20000,
+                                    max_window_us=20000, min_events=1500, max_events=30000))
+        yield f"rally {rps:g}rps axis {axis}", windows, truth
 
 
 def bench_rally(seed: int) -> None:
-    """Fast method on replay-like windows: errors, success, time per window, confidence of failures."""
-    rows = []
-    for name, win, truth in rally_windows(seed):
-        t = time.perf_counter()
-        est = spin.estimate_windows([win])[0]
-        dt = time.perf_counter() - t
-        rows.append((*errors(est.axis, est.omega_rad_s, truth), dt, est.confidence, len(win.events)))
-    a, o, t, c, n = (np.array(x) for x in zip(*rows))
-    ok = (a < 5) & (o < 5)
-    trusted = c >= 0.5
-    print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events): n {len(a)}, "
-          f"axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, success {100 * ok.mean():.1f} %, "
-          f"time/window mean {1e3 * t.mean():.1f} ms median {1e3 * np.median(t):.1f} ms")
-    print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
-          f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
+    """Fast method on replay-like windows, each flight's windows in order as a replay runs them, without
+    and with the warm start from the previous window: errors, success, time per window, confidence of failures.
+    """
+    rows = {False: [], True: []}
+    for name, windows, truth in rally_flights(seed):
+        for warm in (False, True):
+            t = time.process_time()
+            ests = spin.estimate_windows(windows, skip_errors=False, warm_start=warm)
+            dt = (time.process_time() - t) / len(windows)
+            rows[warm] += [(*errors(e.axis, e.omega_rad_s, truth), dt, e.confidence, len(w.events))
+                           for e, w in zip(ests, windows)]
+    for warm, vals in rows.items():
+        a, o, t, c, n = (np.array(x) for x in zip(*vals))
+        ok = (a < 5) & (o < 5)
+        trusted = c >= 0.5
+        print(f"rally windows (r 36 px, {int(n.min())}-{int(n.max())} events), warm start {'on ' if warm else 'off'}: "
+              f"n {len(a)}, axis median {np.median(a):.2f} deg, omega median {np.median(o):.2f} %, "
+              f"success {100 * ok.mean():.1f} %, time/window {1e3 * t.mean():.1f} ms (per-flight mean)")
+        print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
+              f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
 
 
 def main(argv=None):
@@ -122,6 +133,7 @@ def main(argv=None):
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
     args = ap.parse_args(argv)
+    cv2.setNumThreads(1)  # one core: times are CPU time of this process
     if args.rally:
         bench_rally(args.seed)
         return
@@ -138,6 +150,12 @@ def main(argv=None):
     if args.quick and args.fps == "60,120,240,480":
         fps_list = [60.0, 480.0]
 
+    # warm-up (first calls pay for imports, OpenCV and NumPy set-up): not timed
+    events, truth = sim.spinning_ball("volleyball", rps=50, axis=(0.3, -0.5, 0.8), radius_px=60, width=WIDTH,
+                                      height=HEIGHT, n_events=20_000, seed=12345, threshold=0.15)
+    for method, extra in (("fast", {}), ("paper", {"iterations": 5})):
+        spin.estimate_spin(events, truth["center"], truth["radius_px"], velocity=truth["velocity_px_s"],
+                           method=method, **extra)
     results = []
     ratios = []
     print(f"{'row':28s} {'method':12s} {'n':>3s} {'axis med':>8s} {'axis mean':>9s} {'om% med':>8s} "
@@ -154,23 +172,23 @@ def main(argv=None):
                                               height=HEIGHT, n_events=n_events, seed=int(rng.integers(1 << 30)),
                                               threshold=0.15)
             kw = dict(velocity=truth["velocity_px_s"], sensor_size=(WIDTH, HEIGHT))
-            t = time.perf_counter()
+            t = time.process_time()
             est = spin.estimate_spin(events, truth["center"], truth["radius_px"], **kw)
-            dt_fast = time.perf_counter() - t
+            dt_fast = time.process_time() - t
             per["fast"].append((*errors(est.axis, est.omega_rad_s, truth), dt_fast))
             if ri in paper_rows and s < paper_seqs:
-                t = time.perf_counter()
+                t = time.process_time()
                 est = spin.estimate_spin(events, truth["center"], truth["radius_px"], method="paper", **kw)
-                dt_paper = time.perf_counter() - t
+                dt_paper = time.process_time() - t
                 per["paper"].append((*errors(est.axis, est.omega_rad_s, truth), dt_paper))
                 same_fast.append(dt_fast)
                 same_paper.append(dt_paper)
             if s < image_seqs:
                 for f in fps_list:
                     f0, f1, c0, c1 = frame_pair(texture, truth, f)
-                    t = time.perf_counter()
+                    t = time.process_time()
                     w = estimate_image_pair(f0, f1, 1.0 / f, c0, c1)
-                    dt = time.perf_counter() - t
+                    dt = time.process_time() - t
                     om = float(np.linalg.norm(w))
                     per[f"image@{f:g}fps"].append((*errors(w / max(om, 1e-12), om, truth), dt))
         for method, vals in per.items():

@@ -2,18 +2,21 @@
 
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
-2. The best mutually distinct grid points are refined with BFGS
-   (:mod:`spin.refine`) on the same small IWE; the best one is then refined over
-   growing rotation spans and finer IWEs, ending on the whole window at full
-   resolution; the velocity stays at the prior unless the window covers enough
+2. The best mutually distinct grid points take a few BFGS steps (:mod:`spin.refine`)
+   on a small IWE and the leader is refined on; it is then refined over growing
+   rotation spans and finer IWEs, ending on the whole window at full resolution,
+   each level starting from the previous level's inverse-Hessian estimate; the
+   runner-up is refined on the second-last level too and takes over if it scores
+   higher there.  The velocity stays at the prior unless the window covers enough
    rotation to separate spin from translation.
-3. Confidence: the contrast gain over no rotation, the contrast margin of the winner over the best distinct rival
-   (another axis or speed, e.g. an aliased omega of a symmetric texture or the
-   mirrored axis) on the second-last level's events, the agreement of the IWEs of
-   two halves of the events (structure rather than over-fitted noise), the
-   motion the window covers (pixels travelled at the ball's equator), how much of
-   the ball's rim fires at all (a ball partly outside the sensor or hidden) and how
-   evenly the events fill the window in time (bursts leave aliased spins possible).
+3. Confidence: the contrast gain over no rotation, the contrast margin of the winner
+   over the best distinct rival (another axis or speed, e.g. an aliased omega of a
+   symmetric texture or the mirrored axis) on the second-last level's events, the
+   agreement of the IWEs of two halves of the events (structure rather than
+   over-fitted noise), the motion the window covers (pixels travelled at the ball's
+   equator), how much of the ball's rim fires at all (a ball partly outside the
+   sensor or hidden) and how evenly the events fill the window in time (bursts leave
+   aliased spins possible).
 """
 
 from __future__ import annotations
@@ -111,9 +114,9 @@ def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_ev
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
-                  coarse_events: int = 200, levels=LEVELS, max_scale: float = 2.0,
+                  coarse_events: int = 300, levels=LEVELS, max_scale: float = 2.0,
                   refine_velocity: bool | None = None, hemispheres: bool = False,
-                  screen_iterations: int = 2) -> FastResult:
+                  screen_iterations: int = 2, prior_w_rad_s=None, prior_span: float = 2.2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -127,13 +130,28 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         Refine v on the last level; ``None``: when the window spans at least half a
         revolution (where rotation about an in-image axis no longer mimics
         translation) or no prior is known.
+    screen_iterations : int
+        BFGS iterations each coarse candidate takes before the leader is refined on.
+    prior_w_rad_s : (3,), optional
+        A trusted estimate of a neighbouring window of the same flight (rad/s): it joins the
+        candidates and the coarse search keeps to speeds within a factor ``prior_span`` of it
+        (which still holds omega/2 and 2 omega, the aliases of symmetric textures).
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
+    prior = None if prior_w_rad_s is None else np.asarray(prior_w_rad_s, dtype=np.float64)
+    if prior is not None and np.linalg.norm(prior) > 0:
+        omega_prior = float(np.linalg.norm(prior))
+        omega_min_rad_s = max(omega_min_rad_s, omega_prior / prior_span)
+        omega_max_rad_s = max(min(omega_max_rad_s, omega_prior * prior_span), omega_min_rad_s * omega_ratio)
+    else:
+        prior = None
     omegas, directions, scores = coarse_search(
         ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
+    if prior is not None:
+        starts = [prior] + [w for w in starts if not _same(w, prior, 30.0, 1.3)][:n_candidates - 1]
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
 
     def geometry(level):

@@ -119,7 +119,7 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
-                  truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 4,
+                  truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 8,
                   min_rotation_rad: float = 0.1):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
 

@@ -111,3 +111,15 @@ def test_ball_mostly_outside_the_sensor_gives_low_confidence():
     assert events["x"].min() >= 0 and np.median(events["x"]) < 20  # the sim clips at the sensor edge
     est = spin.estimate_spin(events, truth["center"], truth["radius_px"], velocity=truth["velocity_px_s"])
     assert est.confidence < 0.2
+
+
+@pytest.mark.parametrize("prior_factor, prior_axis", [(3.0, (0.0, 0.0, 1.0)), (0.3, (1.0, 0.0, 0.0)), (1.0, -AXIS)])
+def test_wrong_warm_start_prior_is_not_trusted_blindly(ball, prior_factor, prior_axis):
+    # estimate_windows seeds a window with the previous window's estimate; a wrong seed (another
+    # speed and axis, or the reversed spin) must still give the right spin or a low confidence
+    events, truth = ball
+    prior = prior_factor * truth["omega_rad_s"] * np.asarray(prior_axis)
+    est = spin.estimate_spin(events, truth["center"], truth["radius_px"], velocity=truth["velocity_px_s"],
+                             prior_w_rad_s=prior)
+    axis_deg, omega_rel = _errors(est, truth)
+    assert (axis_deg < 2.0 and omega_rel < 0.03) or est.confidence < 0.2
