@@ -92,12 +92,17 @@ def test_parts_hold_every_window_of_every_flight_with_what_it_needs(two_flights,
         assert first[0] < n_batches and first[-1] < n_batches
 
 
-def test_replay_of_parts_equals_spin_of_whole_flights(two_flights, monkeypatch):
+def test_replay_of_parts_equals_spin_on_all_events(two_flights, monkeypatch):
     path, events = two_flights
     monkeypatch.setattr(replay_mod, "WORKERS_MIN_SPAN_S", 0.0)  # a worker process even for this short session
-    result = replay_mod.replay(path, options=ReplayOptions(**{**OPTIONS.__dict__, "workers": 2}), progress=False)
+    options = ReplayOptions(**{**OPTIONS.__dict__, "workers": 2})
+    parts = []
+    track_session(path, options, progress=False, on_part=parts.append)
+    result = replay_mod.replay(path, options=options, progress=False)
     whole = track_ball(events, width=W, height=H)
-    ref = [replay_mod.spin_flight(events, whole.select(whole.flight == f), OPTIONS) for f in whole.flight_ids()]
+    # the same windows in the same units (a unit's windows warm-start from each other), cut from all events
+    ref = [replay_mod.spin_flight(events, whole.select(whole.flight == p.track.flight[0]), options, p.starts_us)
+           for p in parts]
     ref = {k: np.concatenate([r[k] for r in ref]) for k in ref[0]}
     assert len(ref["t_start_us"]) >= 8
     for name, col in ref.items():
