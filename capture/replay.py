@@ -6,8 +6,8 @@ The work is split into independent units with plain inputs and outputs, so that
 a batch of sessions can later run on a distributed engine unchanged:
 
 - :func:`track_session` — one per session: session path in, the whole track out, and each
-  :class:`SpinPart` (some consecutive windows of a flight: their track rows and the events
-  near the ball) handed out as soon as tracking has passed it;
+  :class:`SpinPart` (some consecutive spin windows of a flight, each with its ball events
+  and track prior) handed out as soon as tracking has passed it;
 - :func:`spin_part` — one per part: plain data in, spin columns out; a flight's parts give
   the same windows as the whole flight (:func:`spin_flight`), so splitting only spreads
   the work;
@@ -86,20 +86,19 @@ class SpinPart:
 
     Attributes
     ----------
+    flight : int
+        Flight number.
     starts_us : ndarray of int64
         Start times of the windows, µs (on the flight's grid: every ``step_us`` from its
-        first track row).
-    track : Track
-        The flight's final track rows around them: from the last row at or before the
-        first start to the first row at or after the last start.
-    events : ndarray of EVENT_DTYPE
-        Time-sorted events near the ball from the first start until the longest window
-        after the last: every event these windows can use.
+        first track row); those with too few ball events have no window.
+    windows : list of detect.track.SpinWindow
+        The windows, each with its ball events and the track's prior: exactly those that
+        :func:`detect.track.spin_windows` cuts from all events with the whole track.
     """
 
+    flight: int
     starts_us: np.ndarray
-    track: Track
-    events: np.ndarray
+    windows: list
 
 
 REACH_MARGIN = (1.25, 8.0)
@@ -189,7 +188,11 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
         rows = flight.final
         i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
         i1 = int(np.searchsorted(rows.t_us, starts[-1], side="right")) + 1  # rows may share a time
-        on_part(SpinPart(starts, rows.select(slice(i0, i1)), concatenate(pieces)))
+        fid = int(rows.flight[0])
+        windows = spin_windows(concatenate(pieces), rows.select(slice(i0, i1)), window_us=options.window_us,
+                               min_events=options.min_events, max_events=options.max_events,
+                               max_window_us=options.max_window_us, starts_us={fid: starts})
+        on_part(SpinPart(fid, starts, list(windows)))
         flight.next_start_us = int(starts[-1]) + options.step_us
         near = []
         for chunk in flight.near:
@@ -332,8 +335,10 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
 
 
 def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
-    """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out)."""
-    return spin_flight(part.events, part.track, options, part.starts_us)
+    """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out).
+    Its windows are estimated in order, each warm-started from the one before (see
+    ``spin.estimate_windows``)."""
+    return spin.to_columns(spin.estimate_windows(part.windows, method=options.method))
 
 
 def _spin_unit(args) -> dict[str, np.ndarray]:

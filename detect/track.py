@@ -165,20 +165,31 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
     starts_us = window_starts_us(track, step_us) if starts_us is None else starts_us
     for flight, starts in starts_us.items():
         for t0 in np.asarray(starts, np.int64).tolist():
-            win = time_slice(events, t0, t0 + longest)
-            if len(win) < min_events:
-                continue
             cx, cy, r, vx, vy = track.at(t0, flight=int(flight))
-            dt_s = (win["t"] - t0) * 1e-6
-            dx = win["x"] - (cx + vx * dt_s)
-            dy = win["y"] - (cy + vy * dt_s)
-            inside = np.flatnonzero(dx * dx + dy * dy <= (r + margin_px) ** 2)
-            if len(inside) < min_events:
-                continue
+
+            def inside_of(win):
+                dt_s = (win["t"] - t0) * 1e-6
+                dx = win["x"] - (cx + vx * dt_s)
+                dy = win["y"] - (cy + vy * dt_s)
+                return np.flatnonzero(dx * dx + dy * dy <= (r + margin_px) ** 2)
+
+            # the common case first: enough ball events within window_us (then the longer span
+            # cannot change the window)
+            win = time_slice(events, t0, t0 + window_us)
+            inside = inside_of(win) if len(win) >= min_events else np.zeros(0, np.int64)
             t1 = t0 + window_us
-            n_short = int(np.searchsorted(win["t"][inside], t1))
-            if n_short < min_events:  # lengthen up to the min_events-th ball event
-                t1 = int(win["t"][inside[min_events - 1]]) + 1
+            if len(inside) >= min_events:
+                n_short = len(inside)
+            else:
+                win = time_slice(events, t0, t0 + longest)
+                if len(win) < min_events:
+                    continue
+                inside = inside_of(win)
+                if len(inside) < min_events:
+                    continue
                 n_short = int(np.searchsorted(win["t"][inside], t1))
+                if n_short < min_events:  # lengthen up to the min_events-th ball event
+                    t1 = int(win["t"][inside[min_events - 1]]) + 1
+                    n_short = int(np.searchsorted(win["t"][inside], t1))
             kept = np.take(win, inside[:n_short if max_events is None else min(n_short, max_events)])
             yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight))
