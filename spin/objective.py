@@ -239,7 +239,8 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     if not gradient:
         return value
     # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point
-    g = np.take(blur(hs - np.float32(mean), geometry.sigma, geometry.truncate).ravel(), corners)  # (4, N): g00, g01, g10, g11
+    # (4, N): g00, g01, g10, g11
+    g = np.take(blur(hs - np.float32(mean), geometry.sigma, geometry.truncate).ravel(), corners)
     d01 = g[1] - g[0]
     d23 = g[3] - g[2]
     du = a * d01
