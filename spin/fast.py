@@ -32,7 +32,7 @@ from spin.search import coarse_search, distinct_candidates, events_for_span
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
 # change that ends them); the last level uses the whole window and gives its blur in ball pixels.
 # The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 12.0, 1.2, 500, 8, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 1e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
+LEVELS = ((2.0, 12.0, 1.2, 500, 8, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 3e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
 
 
 @dataclass(frozen=True)
@@ -191,8 +191,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2:
             if rival is not None:
+                # it stops where it comes within reach of the winner (no rival then)
                 rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol,
-                                 inverse_hessian=rival.inverse_hessian)
+                                 inverse_hessian=rival.inverse_hessian, stop_w=lambda x: _same(x, w))
                 if rival.contrast > best.contrast:
                     best, rival = rival, best
                     w = best.w_rad_s

@@ -31,13 +31,14 @@ class LocalMax:
 
 
 def bfgs_minimise(fun, x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e-3, ftol: float = 1e-6,
-                  step0: float = 1.0, h0: np.ndarray | None = None):
+                  step0: float = 1.0, h0: np.ndarray | None = None, stop=None):
     """Minimise ``fun(x) -> (value, gradient)`` from ``x0``.
 
     Dense inverse-Hessian BFGS from ``h0`` if given; else the first step has length at
     most ``step0`` and the inverse Hessian is rescaled by ``s.y / y.y`` after it (as
     L-BFGS does).  Armijo backtracking (quadratic interpolation, at least a tenth of
-    the step each time).  Returns ``(x, value, gradient, converged, n_eval, h)`` with
+    the step each time).  ``stop(x)``, if given, ends the search after a step where it is
+    true (returned as not converged).  Returns ``(x, value, gradient, converged, n_eval, h)`` with
     ``h`` the last inverse-Hessian estimate (None if none was formed).
     """
     x = np.asarray(x0, dtype=np.float64)
@@ -72,6 +73,8 @@ def bfgs_minimise(fun, x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e
         x, f, g = x_new, f_new, g_new
         if converged:
             return x, f, g, True, n_eval, h
+        if stop is not None and stop(x):
+            return x, f, g, False, n_eval, h
         if sy > 1e-12:
             if h is None:
                 h = np.eye(len(x)) * (sy / float(y @ y))
@@ -82,13 +85,14 @@ def bfgs_minimise(fun, x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e
 
 
 def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine_velocity: bool = False,
-             max_iterations: int = 40, ftol: float = 1e-6, inverse_hessian=None) -> LocalMax:
+             max_iterations: int = 40, ftol: float = 1e-6, inverse_hessian=None, stop_w=None) -> LocalMax:
     """Maximise the contrast from ``(w0, v0)`` with BFGS, at most ``2 * max_iterations`` evaluations.
 
     Parameters are scaled so that one unit moves the outermost events by about one
     blur width (``geometry.sigma``) over the events' time span; the objective is
     normalised by its starting value, so an ``inverse_hessian`` (in these units, for ``w``;
     e.g. a previous level's :attr:`LocalMax.inverse_hessian`) carries over between levels.
+    ``stop_w(w_rad_s) -> bool``, if given, ends the search after a step to a ``w`` where it is true.
     """
     w0 = np.asarray(w0_rad_s, dtype=np.float64)
     v0 = np.asarray(v0_px_s, dtype=np.float64)
@@ -119,7 +123,8 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
         h0 = np.eye(n_params) * float(np.trace(inverse_hessian)) / 3.0
         h0[:3, :3] = inverse_hessian
     x, f, _, converged, n_eval, h = bfgs_minimise(fun, np.zeros(n_params), max_evaluations=2 * max_iterations,
-                                                  ftol=ftol, h0=h0)
+                                                  ftol=ftol, h0=h0,
+                                                  stop=None if stop_w is None else (lambda x: stop_w(unpack(x)[0])))
     w, v = unpack(x)
     return LocalMax(w, np.asarray(v, dtype=np.float64), float(-f / norm), converged, n_eval,
                     None if h is None else h[:3, :3])
