@@ -147,13 +147,6 @@ def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, long
     return np.concatenate(keep) if keep else np.zeros(0, np.int64)
 
 
-def _concat_tracks(tracks: list[Track]) -> Track:
-    tracks = [t for t in tracks if len(t)]
-    if not tracks:
-        return Track.empty()
-    return Track(**{k: np.concatenate([t.columns()[k] for t in tracks]) for k in Track.empty().columns()})
-
-
 @dataclass
 class _OpenFlight:
     """What :func:`track_session` keeps of a flight until all its spin parts are out."""
@@ -233,19 +226,20 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     flights: dict[int, _OpenFlight] = {}
     unread: list[np.ndarray] = []  # events not yet assigned to flights
 
-    newest = [-1]  # the highest flight number seen
+    newest = -1  # the highest flight number seen
 
     def take_rows(causal: Track, final: Track):
         """Add the tracker's new causal rows (for keeping events near the ball) and final rows."""
+        nonlocal newest
         for fid in np.unique(causal.flight).tolist():
             rows = causal.select(causal.flight == fid)
             if fid in flights:
-                flights[fid].causal = _concat_tracks([flights[fid].causal, rows])
-            elif fid > newest[0]:
+                flights[fid].causal = Track.concat([flights[fid].causal, rows])
+            elif fid > newest:
                 flights[fid] = _OpenFlight(rows, Track.empty(), int(rows.t_us[0]), [])
-            newest[0] = max(newest[0], fid)
+            newest = max(newest, fid)
         for fid in np.unique(final.flight).tolist():
-            flights[fid].final = _concat_tracks([flights[fid].final, final.select(final.flight == fid)])
+            flights[fid].final = Track.concat([flights[fid].final, final.select(final.flight == fid)])
         for fid, fl in flights.items():
             fl.ended = fid != tracker.active_flight
 
@@ -299,7 +293,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     final = tracker.take_final()
     for fid, fl in flights.items():  # the rows of the last updates: those of the final track
         fl.causal = track.select(track.flight == fid)
-    take_rows(final.select(final.flight > newest[0]), final)
+    take_rows(final.select(final.flight > newest), final)
     if unread:
         assign(None)
     hand_out(None)
@@ -314,7 +308,7 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     ----------
     events : ndarray of EVENT_DTYPE
         Events covering the flight's time span (or the windows' span); events far from
-        the ball may be left out (see :class:`Flight`).
+        the ball may be left out.
     track : Track
         The flight's track rows.
     starts_us : array_like of int, optional
@@ -399,10 +393,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
     # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
     # once tracking is done, this process joins in
-    s = open_session(session_path)
-    span_s = (int(s.events_range(s.n_events - 1, s.n_events)["t"][0]) - int(s.events_range(0, 1)["t"][0])) * 1e-6 \
-        if s.n_events else 0.0
-    workers = options.workers if span_s >= WORKERS_MIN_SPAN_S else 1
+    workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
     with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
                     initializer=_one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))

@@ -395,6 +395,15 @@ class Session:
         """Number of committed events."""
         return self._n("events")
 
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last committed event, s (0 without events)."""
+        n = self.n_events
+        if n == 0:
+            return 0.0
+        t = self.root["events"]["t"]
+        return (int(t[n - 1]) - int(t[0])) * 1e-6
+
     def _read(self, name: str, columns, i0: int = 0, i1: int | None = None) -> dict[str, np.ndarray]:
         n = self._n(name)
         i1 = n if i1 is None else min(i1, n)

@@ -72,6 +72,14 @@ class Track:
         _, first = np.unique(self.flight, return_index=True)
         return self.flight[np.sort(first)]
 
+    @classmethod
+    def concat(cls, tracks) -> Track:
+        """Rows of ``tracks`` one after another (an empty track if there are none)."""
+        tracks = [t for t in tracks if len(t)]
+        if not tracks:
+            return cls.empty()
+        return cls(**{name: np.concatenate([getattr(t, name) for t in tracks]) for name in _DTYPES})
+
     def select(self, mask) -> Track:
         """Rows where ``mask`` is true (or the given indices)."""
         return Track(**{name: getattr(self, name)[mask] for name in _DTYPES})
@@ -135,6 +143,16 @@ def window_starts_us(track: Track, step_us: int) -> dict[int, np.ndarray]:
     return out
 
 
+def _inside(events: np.ndarray, t0_us: int, cx: float, cy: float, vx: float, vy: float,
+            radius_px: float) -> np.ndarray:
+    """Indices of ``events`` within ``radius_px`` of the centre ``(cx, cy)`` at ``t0_us`` moving
+    at ``(vx, vy)`` px/s."""
+    dt_s = (events["t"] - t0_us) * 1e-6
+    dx = events["x"] - (cx + vx * dt_s)
+    dy = events["y"] - (cy + vy * dt_s)
+    return np.flatnonzero(dx * dx + dy * dy <= radius_px ** 2)
+
+
 def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, step_us: int | None = None,
                  min_events: int = 2000, max_events: int | None = None, max_window_us: int | None = None,
                  margin_px: float = 1.0, starts_us: dict[int, np.ndarray] | None = None
@@ -166,17 +184,11 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
     for flight, starts in starts_us.items():
         for t0 in np.asarray(starts, np.int64).tolist():
             cx, cy, r, vx, vy = track.at(t0, flight=int(flight))
-
-            def inside_of(win):
-                dt_s = (win["t"] - t0) * 1e-6
-                dx = win["x"] - (cx + vx * dt_s)
-                dy = win["y"] - (cy + vy * dt_s)
-                return np.flatnonzero(dx * dx + dy * dy <= (r + margin_px) ** 2)
-
+            circle = (t0, cx, cy, vx, vy, r + margin_px)
             # the common case first: enough ball events within window_us (then the longer span
             # cannot change the window)
             win = time_slice(events, t0, t0 + window_us)
-            inside = inside_of(win) if len(win) >= min_events else np.zeros(0, np.int64)
+            inside = _inside(win, *circle) if len(win) >= min_events else np.zeros(0, np.int64)
             t1 = t0 + window_us
             if len(inside) >= min_events:
                 n_short = len(inside)
@@ -184,7 +196,7 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
                 win = time_slice(events, t0, t0 + longest)
                 if len(win) < min_events:
                     continue
-                inside = inside_of(win)
+                inside = _inside(win, *circle)
                 if len(inside) < min_events:
                     continue
                 n_short = int(np.searchsorted(win["t"][inside], t1))

@@ -137,7 +137,7 @@ class BallTracker:
         self._outliers = 0
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
         self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
-        self._final: list[dict[str, np.ndarray]] = []  # final rows, in chunks of columns
+        self._final: list[Track] = []  # final rows, in chunks
         self._n_final_taken = 0
         self._flight_final = 0  # updates of the current flight whose rows are final
         self._t_processed: int | None = None
@@ -168,11 +168,11 @@ class BallTracker:
         self._frames_until(None)
         self._end_flight()
         self._take_rows()
-        return self._final_track(0)
+        return Track.concat(self._final)
 
     def take_final(self) -> Track:
         """Track rows that became final since the last call (see the module docstring)."""
-        out = self._final_track(self._n_final_taken)
+        out = Track.concat(self._final[self._n_final_taken:])
         self._n_final_taken = len(self._final)
         return out
 
@@ -455,18 +455,9 @@ class BallTracker:
             else:
                 t = np.array([h[0] for h in hist[start:final]], np.int64)
                 xs = np.array([h[4] for h in hist[start:final]])
-            self._final.append(dict(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
-                                    score=np.asarray(self._scores[start:final], np.float32),
-                                    flight=np.full(len(t), self._flight, np.int32)))
+            self._final.append(Track(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
+                                     score=self._scores[start:final], flight=np.full(len(t), self._flight)))
             self._flight_final = final
-
-    def _final_track(self, first: int) -> Track:
-        """The final rows from chunk ``first`` on."""
-        parts = self._final[first:]
-        if not parts:
-            return Track.empty()
-        return Track(**{k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
-
 
 def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, frame_times_us=None,
                **opts) -> Track:

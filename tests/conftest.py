@@ -1,4 +1,4 @@
-"""Shared test fixtures: where the shared real recordings live."""
+"""Shared test fixtures: where the shared real recordings live; a simulated ball crossing the sensor twice."""
 
 from pathlib import Path
 
@@ -15,3 +15,16 @@ def shared_raw_dir() -> Path:
     if not (d / "expected.json").is_file():
         pytest.skip(f"shared test recordings not found at {d}")
     return d
+
+
+@pytest.fixture(scope="session")
+def two_crossings():
+    """A small ball (r = 12 px, 480x320) crossing the sensor left to right within 40 ms, then
+    again from 70 ms: two ``sim.flight`` recordings."""
+    import sim
+
+    common = dict(radius_px=12, width=480, height=320, duration_s=0.04, rps=20, distractors=(), noise_rate_hz=1.0,
+                  hot_pixels=10)
+    a = sim.flight(start_px=(-6.0, 150.0), velocity_px_s=(13_000.0, -1500.0), seed=11, **common)
+    b = sim.flight(start_px=(-6.0, 220.0), velocity_px_s=(13_000.0, -2500.0), seed=12, t0_us=70_000, **common)
+    return a, b

@@ -132,16 +132,11 @@ def _flight_truth(rec, t_us):
     return [np.interp(t_us, tt.t_us, getattr(tt, c)) for c in ("cx", "cy", "r", "vx", "vy")]
 
 
-def test_ball_leaving_and_reentering_gives_two_flights():
+def test_ball_leaving_and_reentering_gives_two_flights(two_crossings):
     from sim.esim import merge
 
     # first pass: enters left, leaves right within 40 ms; second: re-enters 30 ms later
-    a = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 150.0),
-                   velocity_px_s=(13_000.0, -1500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
-                   seed=11)
-    b = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 220.0),
-                   velocity_px_s=(13_000.0, -2500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
-                   seed=12, t0_us=70_000)
+    a, b = two_crossings
     ev = merge(a.events, b.events)
     tr = track_ball(ev, width=W, height=H)
     ids = tr.flight_ids()

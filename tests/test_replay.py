@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import capture.replay as replay_mod
-import sim
 from capture.replay import ReplayOptions, track_session
 from capture.session import Session, create_session
 from capture.workers import SharedWork
@@ -19,14 +18,9 @@ W, H = 480, 320
 
 
 @pytest.fixture(scope="module")
-def two_flights(tmp_path_factory):
+def two_flights(tmp_path_factory, two_crossings):
     """A session in which the ball crosses the sensor twice (two flights), and its events."""
-    a = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 150.0),
-                   velocity_px_s=(13_000.0, -1500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
-                   seed=11)
-    b = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 220.0),
-                   velocity_px_s=(13_000.0, -2500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
-                   seed=12, t0_us=70_000)
+    a, b = two_crossings
     events = merge(a.events, b.events)
     path = tmp_path_factory.mktemp("replay") / "session"
     with create_session(path, width=W, height=H) as w:
@@ -103,12 +97,9 @@ def test_replay_of_parts_equals_spin_on_all_events(two_flights, monkeypatch):
         np.testing.assert_array_equal(result.spin[name], col, err_msg=name)
 
 
-def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path, monkeypatch):
+def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path, monkeypatch, two_crossings):
     """A slice the tracker misses leaves a gap between rows longer than the longest window."""
-    rec = sim.flight(radius_px=12, width=W, height=H, duration_s=0.04, start_px=(-6.0, 150.0),
-                     velocity_px_s=(13_000.0, -1500.0), rps=20, distractors=(), noise_rate_hz=1.0, hot_pixels=10,
-                     seed=11)
-    ev = rec.events
+    ev = two_crossings[0].events
     rows = track_ball(ev, width=W, height=H)
     s0 = int(rows.t_us[8]) + 1000  # thin out the slice after row 8: no fit there
     hole = (ev["t"] >= s0) & (ev["t"] < s0 + 2000)

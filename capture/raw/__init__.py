@@ -21,6 +21,5 @@ from capture.raw.files import RawFile, encode, read, write
 from capture.raw.header import FORMATS, header_bytes, normalize_format, parse_header
 from capture.raw.stream import RawReader, StreamDecoder, iter_chunks
 
-
 __all__ = ["FORMATS", "RawDamageWarning", "RawFile", "RawFormatError", "RawReader", "StreamDecoder",
            "encode", "header_bytes", "iter_chunks", "normalize_format", "parse_header", "read", "write"]

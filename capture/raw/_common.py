@@ -179,5 +179,3 @@ def time_high_words(high: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarr
 def select(records: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """``records[keep]`` for a structured array, fast."""
     return as_void(records)[keep].view(records.dtype)
-
-
