@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, contrast, iwe
+from spin.objective import BallEvents, IweGeometry, contrast, iwe, lift_moving
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
@@ -164,10 +164,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
     # every candidate takes a few steps, then the leader goes on to convergence
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5])
-                      for w in starts), key=lambda m: -m.contrast)
+    lifted = lift_moving(sub, v0)
+    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5],
+                               lifted=lifted) for w in starts), key=lambda m: -m.contrast)
     leader = maximise(sub, results[0].w_rad_s, v0, geometry(first), max_iterations=first[4], ftol=first[5],
-                      inverse_hessian=results[0].inverse_hessian)
+                      inverse_hessian=results[0].inverse_hessian, lifted=lifted)
     results[0] = leader if leader.contrast >= results[0].contrast else results[0]
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
@@ -184,20 +185,22 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         rv = False
         if last:
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
+        lifted = None if rv else lift_moving(sub, v)
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
         best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
                         max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
-                        inverse_hessian=best.inverse_hessian)
+                        inverse_hessian=best.inverse_hessian, lifted=lifted)
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2:
             if rival is not None:
                 # it stops where it comes within reach of the winner (no rival then)
                 rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol,
-                                 inverse_hessian=rival.inverse_hessian, stop_w=lambda x: _same(x, w))
+                                 inverse_hessian=rival.inverse_hessian, stop_w=lambda x: _same(x, w),
+                                 lifted=lifted)
                 if rival.contrast > best.contrast:
                     best, rival = rival, best
                     w = best.w_rad_s
-            still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False)
+            still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False, lifted=lifted)
             gain = 1.0 - still / max(best.contrast, 1e-30)
             if rival is not None and _same(rival.w_rad_s, w):
                 rival = None

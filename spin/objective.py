@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
+import math
+
 import cv2
 import numpy as np
 
@@ -84,6 +86,13 @@ class IweGeometry:
     def shape(self) -> tuple[int, int]:
         return (self.size, 2 * self.size if self.hemispheres else self.size)
 
+    @cached_property
+    def holds_sphere(self) -> bool:
+        """Whether every point of the lifted sphere (norm up to ``1.005 r``) votes inside the raster."""
+        reach = 1.005 * self.radius_px * self.scale
+        centre = self.radius_px * self.scale + self.pad
+        return centre - reach >= 0.0 and centre + reach <= self.size - 2.001
+
 
 def blur(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
     """Gaussian blur (zero outside the image), kernel to ``truncate`` sigmas."""
@@ -97,16 +106,18 @@ def _raster_constants(h: int, w: int, dtype):
     return np.array([[w - 1.001], [h - 1.001]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
 
 
-def _bilinear(uv, weight, shape):
+def _bilinear(uv, weight, shape, clip: bool = True):
     """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) (changed in place).
 
     Returns the image (float32, ``shape``), the four corners' flat indices (4, N) and the
     weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
+    ``clip=False`` where every point is known to lie on the raster.
     """
     h, w = shape
     limits, offsets = _raster_constants(h, w, uv.dtype)
-    # points pushed off the raster (possible only for wild velocities) are held at its border
-    np.clip(uv, 0.0, limits, out=uv)  # (np.clip: 3x faster than np.maximum then np.minimum)
+    if clip:
+        # points pushed off the raster (possible only for wild velocities) are held at its border
+        np.clip(uv, 0.0, limits, out=uv)  # (np.clip: 3x faster than np.maximum then np.minimum)
     base = np.floor(uv)
     frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
     idx = (base[1] * w + base[0]).astype(np.intp)  # exact: the raster has far fewer than 2**24 pixels
@@ -131,7 +142,9 @@ def vote(u, v, weight, shape) -> np.ndarray:
 def lift_moving(ev: BallEvents, velocity_px_s):
     """Sphere points (3, N) at the events' times for centre velocity ``velocity_px_s`` (px, centre-relative).
 
-    Also returns ``dz/ddx`` and ``dz/ddy`` factors (``dx/sqrt(r^2-d^2)``), zero where clamped.
+    Also returns ``dz/ddx`` and ``dz/ddy`` factors (``dx/sqrt(r^2-d^2)``), zero where clamped,
+    and whether every event lies within the ball's radius (then no point is longer than
+    ``1.005 r``: the depth is clamped at ``0.1 r``).
     """
     vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
     p = np.empty((3, len(ev)), dtype=ev.x_px.dtype)
@@ -144,12 +157,12 @@ def lift_moving(ev: BallEvents, velocity_px_s):
     root = np.sqrt(np.maximum(zq, floor))
     np.negative(root, out=p[2])
     inv = np.where(clamped, 0.0, 1.0 / root).astype(dx.dtype)
-    return p, dx * inv, dy * inv
+    return p, dx * inv, dy * inv, bool(zq.min(initial=0.0) >= 0.0)
 
 
 def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
     """(9, 3) matrix stacking ``scale * (I, [n]x, [n]x^2)`` for a unit axis ``n`` ([n]x^2 = n n^T - I)."""
-    x, y, z = (float(c) for c in n)
+    x, y, z = n
     s = float(scale)
     return np.array([[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, s],
                      [0.0, -s * z, s * y], [s * z, 0.0, -s * x], [-s * y, s * x, 0.0],
@@ -158,12 +171,14 @@ def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
 
 
 def _rotated(p, tau_s, w_rad_s, scale: float):
-    """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|``, times ``scale``; also n, phi, sin, 1 - cos."""
-    w = np.asarray(w_rad_s, dtype=np.float64)
-    omega = float(np.sqrt(np.dot(w, w)))
-    n = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
-    dt = tau_s.dtype.type
-    phi = tau_s * dt(omega)
+    """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|``, times ``scale``.
+
+    Also returns the axis ``n`` (3 floats), ``omega`` (rad/s), ``phi``, ``sin(phi)`` and ``1 - cos(phi)`` (N,).
+    """
+    wx, wy, wz = (float(c) for c in w_rad_s)
+    omega = math.sqrt(wx * wx + wy * wy + wz * wz)
+    n = (wx / omega, wy / omega, wz / omega) if omega > 0 else (0.0, 0.0, 1.0)
+    phi = tau_s * tau_s.dtype.type(omega)
     sin = np.sin(phi)
     one_cos = 1 - np.cos(phi)
     # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9, 3) product
@@ -171,13 +186,12 @@ def _rotated(p, tau_s, w_rad_s, scale: float):
     q = terms[0:3]
     q += sin * terms[3:6]
     q += one_cos * terms[6:9]
-    return q, n, phi, sin, one_cos
+    return q, n, omega, phi, sin, one_cos
 
 
 def warp(ev: BallEvents, w_rad_s, velocity_px_s) -> np.ndarray:
     """Points (3, N), px relative to the centre, rotated to ``t_ref``."""
-    p, _, _ = lift_moving(ev, velocity_px_s)
-    return _rotated(p, ev.tau_s, w_rad_s, 1.0)[0]
+    return _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, 1.0)[0]
 
 
 def _iwe_coords(q, geometry: IweGeometry):
@@ -226,21 +240,23 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     grad_w : ndarray (3,)  (only with ``gradient``)
     grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
-    p, dzdx, dzdy = lift_moving(ev, velocity_px_s) if lifted is None else lifted
+    p, dzdx, dzdy, inside = lift_moving(ev, velocity_px_s) if lifted is None else lifted
     # q in IWE pixels (scaled), relative to the centre
-    q, n, phi, sin, one_cos = _rotated(p, ev.tau_s, w_rad_s, geometry.scale)
+    q, n, omega, phi, sin, one_cos = _rotated(p, ev.tau_s, w_rad_s, geometry.scale)
     uv = _iwe_coords(q, geometry)
     h, width = geometry.shape
     size = h * width
-    img, corners, frac, a, b = _bilinear(uv, ev.weight, geometry.shape)
+    img, corners, frac, a, b = _bilinear(uv, ev.weight, geometry.shape, clip=not (inside and geometry.holds_sphere))
     hs = blur(img, geometry.sigma, geometry.truncate)
     mean = cv2.sumElems(hs)[0] / size
     value = cv2.norm(hs, cv2.NORM_L2SQR) / size - mean * mean
     if not gradient:
         return value
-    # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point
+    # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point takes only
+    # differences between the four corners, and G * mean is the constant mean wherever points vote
+    # (the kernel lies inside the raster there), so G * G * H serves
     # (4, N): g00, g01, g10, g11
-    g = np.take(blur(hs - np.float32(mean), geometry.sigma, geometry.truncate).ravel(), corners)
+    g = np.take(blur(hs, geometry.sigma, geometry.truncate).ravel(), corners)
     d01 = g[1] - g[0]
     d23 = g[3] - g[2]
     du = a * d01
@@ -264,15 +280,17 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     np.multiply(q[2], du, out=acr[1])
     np.multiply(q[0], dv, out=acr[2])
     acr[2] -= q[1] * du
-    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega
-    omega = float(np.linalg.norm(w_rad_s))
-    # three matrix-vector products (a (3, N) x (N, 3) product with a transposed operand costs 4x more)
-    sums = np.array([acr @ ev.tau_s, acr @ one_cos, acr @ (phi - sin)],
-                    dtype=np.float64) * (2.0 / size)  # rows A, B, C
-    sums[1:] /= omega if omega > 0 else 1.0  # (B and C are 0 at omega = 0)
-    nxb = _axis_cross(n, sums[1])
-    nxnxc = _axis_cross(n, _axis_cross(n, sums[2]))
-    grad_w = np.array([sums[0, i] - nxb[i] + nxnxc[i] for i in range(3)])
+    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega; three
+    # matrix-vector products (a (3, N) x (N, 3) product with a transposed operand costs 4x more), the
+    # rest on Python floats (cheaper than NumPy calls on 3-vectors)
+    k = 2.0 / size
+    k_omega = k / omega if omega > 0 else k  # (B and C are 0 at omega = 0)
+    sum_a = [k * c for c in (acr @ ev.tau_s).tolist()]
+    sum_b = [k_omega * c for c in (acr @ one_cos).tolist()]
+    sum_c = [k_omega * c for c in (acr @ (phi - sin)).tolist()]
+    nxb = _axis_cross(n, sum_b)
+    nxnxc = _axis_cross(n, _axis_cross(n, sum_c))
+    grad_w = np.array([sum_a[i] - nxb[i] + nxnxc[i] for i in range(3)])
     if not velocity_gradient:
         return value, grad_w, np.zeros(2)
     # d f / d p_k = scale R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset

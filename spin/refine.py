@@ -85,7 +85,8 @@ def bfgs_minimise(fun, x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e
 
 
 def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine_velocity: bool = False,
-             max_iterations: int = 40, ftol: float = 1e-6, inverse_hessian=None, stop_w=None) -> LocalMax:
+             max_iterations: int = 40, ftol: float = 1e-6, inverse_hessian=None, stop_w=None,
+             lifted=None) -> LocalMax:
     """Maximise the contrast from ``(w0, v0)`` with BFGS, at most ``2 * max_iterations`` evaluations.
 
     Parameters are scaled so that one unit moves the outermost events by about one
@@ -93,6 +94,7 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     normalised by its starting value, so an ``inverse_hessian`` (in these units, for ``w``;
     e.g. a previous level's :attr:`LocalMax.inverse_hessian`) carries over between levels.
     ``stop_w(w_rad_s) -> bool``, if given, ends the search after a step to a ``w`` where it is true.
+    ``lifted``: ``lift_moving(ev, v0_px_s)`` if already computed (used only with a fixed velocity).
     """
     w0 = np.asarray(w0_rad_s, dtype=np.float64)
     v0 = np.asarray(v0_px_s, dtype=np.float64)
@@ -102,7 +104,10 @@ def maximise(ev: BallEvents, w0_rad_s, v0_px_s, geometry: IweGeometry, *, refine
     v_unit = geometry.sigma / (span_s * geometry.scale)
     n_params = 5 if refine_velocity else 3
     norm = None  # 1 / contrast at the start, set by the first evaluation
-    lifted = None if refine_velocity else lift_moving(ev, v0)  # fixed velocity: lift the events once
+    if refine_velocity:
+        lifted = None
+    elif lifted is None:
+        lifted = lift_moving(ev, v0)  # fixed velocity: lift the events once
 
     def unpack(x):
         return w0 + x[:3] * w_unit, (v0 + x[3:5] * v_unit) if refine_velocity else v0

@@ -9,18 +9,23 @@ Limiting the rotation angle makes the grid spacing needed independent of omega.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, blur
 
 
+@lru_cache(maxsize=8)
 def fibonacci_sphere(n: int) -> np.ndarray:
-    """``n`` nearly uniform unit vectors, shape (n, 3)."""
+    """``n`` nearly uniform unit vectors, shape (n, 3) (read-only: one array shared between calls)."""
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
     rho = np.sqrt(1.0 - z * z)
     phi = np.pi * (3.0 - np.sqrt(5.0)) * i
-    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+    grid = np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+    grid.flags.writeable = False
+    return grid
 
 
 def _span_bounds(ev: BallEvents, half_span_s):
@@ -30,15 +35,17 @@ def _span_bounds(ev: BallEvents, half_span_s):
     return np.searchsorted(ev.s_s, t_ref - h, side="left"), np.searchsorted(ev.s_s, t_ref + h, side="right")
 
 
-def _span_index(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int):
-    """Index (slice or array) of :func:`events_for_span`'s events."""
-    lo, hi = (int(b) for b in _span_bounds(ev, 0.5 * span_rad / max(omega_rad_s, 1e-9)))
-    n = len(ev)
-    if hi - lo <= n_events:
-        mid = int(np.searchsorted(ev.s_s, ev.s_s[0] + ev.tau_s[0]))
-        start = min(max(mid - n_events // 2, 0), max(n - n_events, 0))
-        return np.arange(start, min(start + n_events, n))
-    return np.linspace(lo, hi - 1, n_events).astype(np.int64)
+def _span_rows(ev: BallEvents, omegas_rad_s, span_rad: float, n_events: int) -> np.ndarray:
+    """Indices (M, n) of :func:`events_for_span`'s events for each of the speeds ``omegas_rad_s`` (M,)."""
+    lo, hi = _span_bounds(ev, 0.5 * span_rad / np.maximum(np.asarray(omegas_rad_s, dtype=np.float64), 1e-9))
+    n_all = len(ev)
+    n = min(n_events, n_all)
+    k = np.arange(n)
+    mid = int(np.searchsorted(ev.s_s, ev.s_s[0] + ev.tau_s[0]))
+    block = min(max(mid - n_events // 2, 0), max(n_all - n_events, 0)) + k
+    # evenly spread over [lo, hi - 1], both ends included (exact integer arithmetic)
+    spread = lo[:, None] + (k * (hi - 1 - lo)[:, None]) // max(n - 1, 1)
+    return np.where((hi - lo > n_events)[:, None], spread, block)
 
 
 def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_events: int) -> BallEvents:
@@ -48,7 +55,7 @@ def events_for_span(ev: BallEvents, omega_rad_s: float, span_rad: float, n_event
     (a contiguous block), evenly subsampled to ``n_events``; where that span holds
     fewer, the block of ``n_events`` centred on ``t_ref``.
     """
-    return ev.take(_span_index(ev, omega_rad_s, span_rad, n_events))
+    return ev.take(_span_rows(ev, [omega_rad_s], span_rad, n_events)[0])
 
 
 def _lift_rows(ev: BallEvents, index: np.ndarray, velocity_px_s, dtype=np.float32):
@@ -106,10 +113,12 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
         u = u + (q[:, :, 2] > 0) * dt(geometry.size)
     # the IWEs side by side in one raster (the blur then runs along long rows: 3x faster than IWEs
     # stacked on top of each other); their margins keep neighbours apart
-    idx = (q[:, :, 1].astype(np.int32) * stride + u.astype(np.int32)
-           + (np.arange(images, dtype=np.int32) * width).reshape(1, r, d + 1))
-    wgt = np.broadcast_to(weight[:, :, None].astype(np.float64), idx.shape)
-    img = np.bincount(idx.ravel(), wgt.ravel(), h * stride).astype(np.float32)
+    idx = q[:, :, 1].astype(np.intp)
+    idx *= stride
+    idx += u.astype(np.intp)
+    idx += (np.arange(images, dtype=np.intp) * width).reshape(1, r, d + 1)
+    wgt = np.repeat(weight.astype(np.float64).ravel(), d + 1)  # the (N, R) weights along the directions
+    img = np.bincount(idx.ravel(), wgt, h * stride).astype(np.float32)
     img = blur(img.reshape(h, stride), geometry.sigma, geometry.truncate)
     n_px = h * width
     mean = img.sum(axis=0).reshape(images, width).sum(axis=1) / n_px  # float32 sums: ample here
@@ -145,7 +154,7 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     n_omega = len(omegas)
     directions = fibonacci_sphere(n_directions)
     geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate)
-    index = np.stack([_span_index(ev, float(om), span_rad, n_events) for om in omegas])  # (M, n)
+    index = _span_rows(ev, omegas, span_rad, n_events)  # (M, n)
     pts, tau, weight = _lift_rows(ev, index, velocity_px_s)
     scores = np.empty((n_omega, n_directions))
     for k in range(0, n_omega, rows_per_call):  # a few rows at a time: the arrays stay in cache

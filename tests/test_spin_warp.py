@@ -49,7 +49,7 @@ def test_lift_is_on_camera_facing_half_sphere_with_moving_centre():
     # centre moves +100 px/s in x: at s = 0.03 s an event at x = 3 sits on the centre
     ev = BallEvents(np.array([0.0, 3.0, 3.0]), np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.03, 0.0]),
                     np.zeros(3), np.ones(3), 5.0)
-    (px, py, pz), dzdx, _ = lift_moving(ev, (100.0, 0.0))
+    (px, py, pz), dzdx, _, _ = lift_moving(ev, (100.0, 0.0))
     assert np.allclose(px, [0, 0, 3]) and np.allclose(py, [0, 0, 4])
     assert np.allclose(pz[:2], -5.0) and pz[2] < 0 and abs(pz[2]) <= 0.5 + 1e-9  # rim clamped at 0.1 r
     assert dzdx[2] == 0.0
