@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spin.objective import BallEvents, IweGeometry, contrast, iwe, lift_moving
+from spin.objective import BallEvents, IweGeometry, contrast, iwe_parts, lift_moving
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
@@ -64,8 +64,7 @@ def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
     High when both halves show the same aligned texture; near 0 for events without
     consistent structure (noise), where a maximum is only over-fitting.
     """
-    a = iwe(ev.take(slice(0, None, 2)), w, v, geometry).ravel()
-    b = iwe(ev.take(slice(1, None, 2)), w, v, geometry).ravel()
+    a, b = (image.ravel() for image in iwe_parts(ev, w, v, geometry, 2))
     a = a - a.mean()
     b = b - b.mean()
     return float(np.dot(a, b) / max(np.sqrt(np.dot(a, a) * np.dot(b, b)), 1e-30))
@@ -165,16 +164,17 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
     # every candidate takes a few steps, then the leader goes on to convergence
     lifted = lift_moving(sub, v0)
-    results = sorted((maximise(sub, w, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5],
-                               lifted=lifted) for w in starts), key=lambda m: -m.contrast)
-    leader = maximise(sub, results[0].w_rad_s, v0, geometry(first), max_iterations=first[4], ftol=first[5],
-                      inverse_hessian=results[0].inverse_hessian, lifted=lifted)
+    results = sorted(maximise(sub, starts, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5],
+                              lifted=lifted), key=lambda m: -m.contrast)
+    leader = maximise(sub, [results[0].w_rad_s], v0, geometry(first), max_iterations=first[4], ftol=first[5],
+                      inverse_hessians=[results[0].inverse_hessian], lifted=lifted)[0]
     results[0] = leader if leader.contrast >= results[0].contrast else results[0]
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
-    # the runner-up is refined on the second-last level's events too, to measure the margin, and takes
-    # over where it scores higher there
+    # the runner-up is refined along with it on the second-last level's events, to measure the margin
+    # (it stops where it comes within reach of the winner: no rival then), and takes over where it
+    # scores higher there
     w, v = best.w_rad_s, best.v_px_s
     margin = gain = 1.0
     for li, level in enumerate(levels[1:], start=1):
@@ -186,20 +186,18 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         if last:
             rv = (omega * window_s >= np.pi or not velocity_known) if refine_velocity is None else refine_velocity
         lifted = None if rv else lift_moving(sub, v)
+        runs = [best] + ([rival] if rival is not None and li == len(levels) - 2 else [])
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
-        best = maximise(sub, w, v, geometry(level), refine_velocity=rv,
+        runs = maximise(sub, [m.w_rad_s for m in runs], v, geometry(level), refine_velocity=rv,
                         max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
-                        inverse_hessian=best.inverse_hessian, lifted=lifted)
+                        inverse_hessians=[m.inverse_hessian for m in runs], lifted=lifted, stop_same=_same)
+        best = runs[0]
+        if len(runs) > 1:
+            rival = runs[1]
+            if rival.contrast > best.contrast:
+                best, rival = rival, best
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2:
-            if rival is not None:
-                # it stops where it comes within reach of the winner (no rival then)
-                rival = maximise(sub, rival.w_rad_s, v, geometry(level), max_iterations=iterations, ftol=ftol,
-                                 inverse_hessian=rival.inverse_hessian, stop_w=lambda x: _same(x, w),
-                                 lifted=lifted)
-                if rival.contrast > best.contrast:
-                    best, rival = rival, best
-                    w = best.w_rad_s
             still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False, lifted=lifted)
             gain = 1.0 - still / max(best.contrast, 1e-30)
             if rival is not None and _same(rival.w_rad_s, w):

@@ -101,23 +101,33 @@ def blur(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
+def _blur_twice_kernel(sigma: float, truncate: float) -> np.ndarray:
+    """1-D kernel (float32) of :func:`blur` applied twice: its Gaussian convolved with itself."""
+    g = cv2.getGaussianKernel(2 * int(np.ceil(truncate * sigma)) + 1, sigma, cv2.CV_64F).ravel()
+    return np.convolve(g, g).astype(np.float32)
+
+
+def blur_twice(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """``blur(blur(image))`` in one pass (zero outside the image: equal where the image is zero
+    within twice the kernel's reach of its edge)."""
+    kernel = _blur_twice_kernel(float(sigma), float(truncate))
+    return cv2.sepFilter2D(image, -1, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
+
+
+@lru_cache(maxsize=64)
 def _raster_constants(h: int, w: int, dtype):
-    """Coordinate limits (2, 1) and the four corners' index offsets (4, 1) of an ``h`` x ``w`` raster."""
-    return np.array([[w - 1.001], [h - 1.001]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+    """Coordinate limits (2, 1, 1) of an ``h`` x ``w`` raster and its four corners' index offsets (4, 1)."""
+    return np.array([[[w - 1.001]], [[h - 1.001]]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
 
 
-def _bilinear(uv, weight, shape, clip: bool = True):
-    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) (changed in place).
+def _bilinear(uv, weight, shape):
+    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) on the raster (changed in place).
 
     Returns the image (float32, ``shape``), the four corners' flat indices (4, N) and the
     weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
-    ``clip=False`` where every point is known to lie on the raster.
     """
     h, w = shape
-    limits, offsets = _raster_constants(h, w, uv.dtype)
-    if clip:
-        # points pushed off the raster (possible only for wild velocities) are held at its border
-        np.clip(uv, 0.0, limits, out=uv)  # (np.clip: 3x faster than np.maximum then np.minimum)
+    offsets = _raster_constants(h, w, uv.dtype)[1]
     base = np.floor(uv)
     frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
     idx = (base[1] * w + base[0]).astype(np.intp)  # exact: the raster has far fewer than 2**24 pixels
@@ -132,11 +142,6 @@ def _bilinear(uv, weight, shape, clip: bool = True):
     np.subtract(b, votes[3], out=votes[2])
     img = np.bincount(corners.ravel(), votes.ravel(), h * w).astype(np.float32).reshape(h, w)
     return img, corners, frac, a, b
-
-
-def vote(u, v, weight, shape) -> np.ndarray:
-    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``(u, v)`` (N,); float32 image of ``shape``."""
-    return _bilinear(np.array([u, v]), weight, shape)[0]
 
 
 def lift_moving(ev: BallEvents, velocity_px_s):
@@ -171,42 +176,64 @@ def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
 
 
 def _rotated(p, tau_s, w_rad_s, scale: float):
-    """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|``, times ``scale``.
+    """Points ``p`` (3, N) rotated by ``|w_k| tau`` about ``w_k / |w_k|``, times ``scale``, for each ``w_k``.
 
-    Also returns the axis ``n`` (3 floats), ``omega`` (rad/s), ``phi``, ``sin(phi)`` and ``1 - cos(phi)`` (N,).
+    ``w_rad_s`` is (K, 3).  Returns ``q`` (K, 3, N), the axes ``n`` (K tuples of 3 floats), the
+    speeds ``omega`` (K floats, rad/s), and ``phi``, ``sin(phi)``, ``1 - cos(phi)`` (K, N).
     """
-    wx, wy, wz = (float(c) for c in w_rad_s)
-    omega = math.sqrt(wx * wx + wy * wy + wz * wz)
-    n = (wx / omega, wy / omega, wz / omega) if omega > 0 else (0.0, 0.0, 1.0)
-    phi = tau_s * tau_s.dtype.type(omega)
+    omega, n = [], []
+    for wx, wy, wz in np.asarray(w_rad_s, dtype=np.float64).tolist():
+        om = math.sqrt(wx * wx + wy * wy + wz * wz)
+        omega.append(om)
+        n.append((wx / om, wy / om, wz / om) if om > 0 else (0.0, 0.0, 1.0))
+    k, n_ev = len(omega), len(tau_s)
+    phi = np.multiply(np.array(omega, dtype=tau_s.dtype)[:, None], tau_s)
     sin = np.sin(phi)
     one_cos = 1 - np.cos(phi)
-    # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9, 3) product
-    terms = _rotation_rows(n, scale, p.dtype) @ p
-    q = terms[0:3]
-    q += sin * terms[3:6]
-    q += one_cos * terms[6:9]
+    # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9 K, 3) product
+    rows = _rotation_rows(n[0], scale, p.dtype) if k == 1 else np.concatenate(
+        [_rotation_rows(nk, scale, p.dtype) for nk in n])
+    terms = (rows @ p).reshape(k, 9, n_ev)
+    q = terms[:, 0:3]
+    q += sin[:, None] * terms[:, 3:6]
+    q += one_cos[:, None] * terms[:, 6:9]
     return q, n, omega, phi, sin, one_cos
 
 
 def warp(ev: BallEvents, w_rad_s, velocity_px_s) -> np.ndarray:
     """Points (3, N), px relative to the centre, rotated to ``t_ref``."""
-    return _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, 1.0)[0]
+    return _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, np.reshape(w_rad_s, (1, 3)), 1.0)[0][0]
 
 
-def _iwe_coords(q, geometry: IweGeometry):
-    """IWE coordinates (2, N) of scaled points ``q`` (3, N) relative to the centre."""
-    uv = q[:2] + q.dtype.type(geometry.radius_px * geometry.scale + geometry.pad)
+def _iwe_coords(q, geometry: IweGeometry, clip: bool = True):
+    """IWE coordinates (2, K N) of scaled points ``q`` (K, 3, N) relative to the centre.
+
+    The K IWEs lie side by side in one raster of K times ``geometry.shape``'s width; with ``clip``
+    points off their IWE (possible only for wild velocities) are held at its border.
+    """
+    k, _, n_ev = q.shape
+    dt = q.dtype.type
+    uv = np.empty((2, k, n_ev), dtype=q.dtype)
+    np.add(q[:, :2].transpose(1, 0, 2), dt(geometry.radius_px * geometry.scale + geometry.pad), out=uv)
     if geometry.hemispheres:
-        uv[0] += (q[2] > 0) * q.dtype.type(geometry.size)
-    return uv
+        uv[0] += (q[:, 2] > 0) * dt(geometry.size)
+    h, width = geometry.shape
+    if clip:
+        np.clip(uv, 0.0, _raster_constants(h, width, q.dtype)[0], out=uv)  # (3x faster than np.maximum then np.minimum)
+    if k > 1:
+        uv[0] += (np.arange(k, dtype=q.dtype) * dt(width))[:, None]
+    return uv.reshape(2, k * n_ev)
 
 
-def iwe(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry) -> np.ndarray:
-    """Smoothed image of warped events, float32 of ``geometry.shape``."""
-    q = _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, geometry.scale)[0]
-    return blur(_bilinear(_iwe_coords(q, geometry), ev.weight, geometry.shape)[0], geometry.sigma,
-                geometry.truncate)
+def iwe_parts(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, n_parts: int = 1) -> np.ndarray:
+    """Smoothed images of warped events, float32 (n_parts, *geometry.shape): image ``k`` of events ``k::n_parts``."""
+    q = _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, np.reshape(w_rad_s, (1, 3)), geometry.scale)[0]
+    h, width = geometry.shape
+    uv = _iwe_coords(q, geometry)
+    if n_parts > 1:  # the parts' images side by side in one raster
+        uv[0] += (np.arange(len(ev)) % n_parts).astype(uv.dtype) * uv.dtype.type(width)
+    img = blur(_bilinear(uv, ev.weight, (h, n_parts * width))[0], geometry.sigma, geometry.truncate)
+    return img.reshape(h, n_parts, width).transpose(1, 0, 2)
 
 
 def _axis_cross(n, a):
@@ -216,17 +243,19 @@ def _axis_cross(n, a):
 
 def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
              velocity_gradient: bool = True, lifted=None):
-    """Variance of the IWE and, optionally, its gradient.
+    """Variance of the IWE and, optionally, its gradient, for one or several angular velocities.
 
     All events turn about the same axis ``n = w / |w|`` by ``phi_k = |w| tau_k``, so the
     rotation is evaluated as ``q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p)`` and the
     sums over events of the gradient factor through constant cross products with ``n``.
+    Several angular velocities are evaluated in one pass (their IWEs side by side in one
+    raster): the fixed cost of a pass then counts once.
 
     Parameters
     ----------
     ev : BallEvents
-    w_rad_s : array (3,)
-        Angular velocity ``omega * axis`` (rad/s).
+    w_rad_s : array (3,) or (K, 3)
+        Angular velocity ``omega * axis`` (rad/s), or K of them.
     velocity_px_s : array (2,)
         Centre velocity (px/s).
     geometry : IweGeometry
@@ -236,27 +265,35 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
 
     Returns
     -------
-    value : float
-    grad_w : ndarray (3,)  (only with ``gradient``)
-    grad_v : ndarray (2,)  (only with ``gradient``; zeros unless ``velocity_gradient``)
+    value : float, or (K,)
+    grad_w : ndarray (3,) or (K, 3)  (only with ``gradient``)
+    grad_v : ndarray (2,) or (K, 2)  (only with ``gradient``; zeros unless ``velocity_gradient``)
     """
+    single = np.ndim(w_rad_s) == 1
     p, dzdx, dzdy, inside = lift_moving(ev, velocity_px_s) if lifted is None else lifted
     # q in IWE pixels (scaled), relative to the centre
-    q, n, omega, phi, sin, one_cos = _rotated(p, ev.tau_s, w_rad_s, geometry.scale)
-    uv = _iwe_coords(q, geometry)
+    q, n, omega, phi, sin, one_cos = _rotated(p, ev.tau_s, np.reshape(w_rad_s, (-1, 3)), geometry.scale)
+    k, _, n_ev = q.shape
     h, width = geometry.shape
     size = h * width
-    img, corners, frac, a, b = _bilinear(uv, ev.weight, geometry.shape, clip=not (inside and geometry.holds_sphere))
-    hs = blur(img, geometry.sigma, geometry.truncate)
-    mean = cv2.sumElems(hs)[0] / size
-    value = cv2.norm(hs, cv2.NORM_L2SQR) / size - mean * mean
+    weight = ev.weight if k == 1 else np.tile(ev.weight, k)
+    img, corners, frac, a, b = _bilinear(_iwe_coords(q, geometry, clip=not (inside and geometry.holds_sphere)),
+                                         weight, (h, k * width))
+    # the variance of the blurred IWE G * H from one filter pass: <G * H, G * H> = <H, G * G * H> (G is
+    # symmetric, and no vote lies within the kernel's reach of the raster's edge but for clipped points)
+    ggh = blur_twice(img, geometry.sigma, geometry.truncate)
+    product = np.multiply(img, ggh)
+    value = []
+    for i in range(k):
+        image = np.s_[:, i * width:(i + 1) * width]
+        mean = cv2.sumElems(img[image])[0] / size  # (the blur keeps the sum)
+        value.append(cv2.sumElems(product[image])[0] / size - mean * mean)
     if not gradient:
-        return value
-    # d value / d H = 2 / size * G * (G * H - mean); its bilinear derivative at each point takes only
-    # differences between the four corners, and G * mean is the constant mean wherever points vote
-    # (the kernel lies inside the raster there), so G * G * H serves
-    # (4, N): g00, g01, g10, g11
-    g = np.take(blur(hs, geometry.sigma, geometry.truncate).ravel(), corners)
+        return value[0] if single else np.array(value)
+    # d value / d H = 2 / size * (G * G * H - mean); its bilinear derivative at each point takes only
+    # differences between the four corners, where the constant mean cancels
+    # (4, K N): g00, g01, g10, g11
+    g = np.take(ggh.ravel(), corners)
     d01 = g[1] - g[0]
     d23 = g[3] - g[2]
     du = a * d01
@@ -266,39 +303,47 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     d23 *= frac[0]
     d23 += g[2]
     d23 -= g[0]
-    dv = d23 * ev.weight.astype(np.float32, copy=False)
+    dv = d23 * weight.astype(np.float32, copy=False)
     dt = q.dtype.type
-    du = du.astype(dt, copy=False)
-    dv = dv.astype(dt, copy=False)
+    du = du.astype(dt, copy=False).reshape(k, n_ev)
+    dv = dv.astype(dt, copy=False).reshape(k, n_ev)
     # d f / d theta_k = J_l(theta_k)^T a_k with a_k = q_k x (du, dv, 0) and theta_k = phi_k n:
     # J_l^T a = a - (1 - cos)/phi n x a + (1 - sin/phi) n x (n x a); d theta_k / d w = tau_k (for the
     # part along n; the same J_l form covers the perpendicular part), so
     # d f / d w = A - n x B + n x (n x C) with A, B, C the tau-weighted sums below
-    acr = np.empty((3, len(du)), dtype=dt)
-    np.multiply(q[2], dv, out=acr[0])
-    np.negative(acr[0], out=acr[0])
-    np.multiply(q[2], du, out=acr[1])
-    np.multiply(q[0], dv, out=acr[2])
-    acr[2] -= q[1] * du
-    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega; three
-    # matrix-vector products (a (3, N) x (N, 3) product with a transposed operand costs 4x more), the
-    # rest on Python floats (cheaper than NumPy calls on 3-vectors)
-    k = 2.0 / size
-    k_omega = k / omega if omega > 0 else k  # (B and C are 0 at omega = 0)
-    sum_a = [k * c for c in (acr @ ev.tau_s).tolist()]
-    sum_b = [k_omega * c for c in (acr @ one_cos).tolist()]
-    sum_c = [k_omega * c for c in (acr @ (phi - sin)).tolist()]
-    nxb = _axis_cross(n, sum_b)
-    nxnxc = _axis_cross(n, _axis_cross(n, sum_c))
-    grad_w = np.array([sum_a[i] - nxb[i] + nxnxc[i] for i in range(3)])
+    acr = np.empty((k, 3, n_ev), dtype=dt)
+    np.multiply(q[:, 2], dv, out=acr[:, 0])
+    np.negative(acr[:, 0], out=acr[:, 0])
+    np.multiply(q[:, 2], du, out=acr[:, 1])
+    np.multiply(q[:, 0], dv, out=acr[:, 2])
+    acr[:, 2] -= q[:, 1] * du
+    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega; matrix-vector
+    # products (a (3, N) x (N, 3) product with a transposed operand costs 4x more), the rest on Python
+    # floats (cheaper than NumPy calls on 3-vectors)
+    sums_a = (acr @ ev.tau_s).tolist()
+    sums_b = (acr @ one_cos[:, :, None]).tolist()
+    sums_c = (acr @ (phi - sin)[:, :, None]).tolist()
+    grad_w = []
+    for i in range(k):
+        scale_a = 2.0 / size
+        scale_bc = scale_a / omega[i] if omega[i] > 0 else scale_a  # (B and C are 0 at omega = 0)
+        nxb = _axis_cross(n[i], [scale_bc * c[0] for c in sums_b[i]])
+        nxnxc = _axis_cross(n[i], _axis_cross(n[i], [scale_bc * c[0] for c in sums_c[i]]))
+        grad_w.append([scale_a * sums_a[i][j] - nxb[j] + nxnxc[j] for j in range(3)])
+    grad_w = np.array(grad_w)
     if not velocity_gradient:
-        return value, grad_w, np.zeros(2)
-    # d f / d p_k = scale R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
-    gq = (du, dv, np.zeros_like(du))
-    nd = tuple(dt(c) for c in n)
-    nxg = _axis_cross(nd, gq)
-    nxnxg = _axis_cross(nd, nxg)
-    gp = tuple(gq[i] - sin * nxg[i] + one_cos * nxnxg[i] for i in range(3))
-    grad_v = np.array([-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)],
-                      dtype=np.float64) * (2.0 * geometry.scale / size)
-    return value, grad_w, grad_v
+        grad_v = np.zeros((k, 2))
+    else:
+        # d f / d p_k = scale R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
+        grad_v = np.empty((k, 2))
+        for i in range(k):
+            gq = (du[i], dv[i], np.zeros_like(du[i]))
+            nd = tuple(dt(c) for c in n[i])
+            nxg = _axis_cross(nd, gq)
+            nxnxg = _axis_cross(nd, nxg)
+            gp = tuple(gq[j] - sin[i] * nxg[j] + one_cos[i] * nxnxg[j] for j in range(3))
+            grad_v[i] = [-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)]
+        grad_v *= 2.0 * geometry.scale / size
+    if single:
+        return value[0], grad_w[0], grad_v[0]
+    return np.array(value), grad_w, grad_v
