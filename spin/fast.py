@@ -2,12 +2,12 @@
 
 1. Coarse search (:mod:`spin.search`) over axis directions x log-spaced omega on a
    few hundred events per omega spanning a fixed rotation angle, small IWEs.
-2. The best mutually distinct grid points take a few BFGS steps (:mod:`spin.refine`)
-   on a small IWE and the leader is refined on; it is then refined over growing
-   rotation spans and finer IWEs, ending on the whole window at full resolution,
-   each level starting from the previous level's inverse-Hessian estimate; the
-   runner-up is refined on the second-last level too and takes over if it scores
-   higher there.  The velocity stays at the prior unless the window covers enough
+2. The best mutually distinct grid points take a few BFGS steps together
+   (:mod:`spin.refine`) on a small IWE; the best is then refined over growing rotation
+   spans and finer IWEs, ending on the whole window at full resolution, each level
+   starting from the previous level's inverse-Hessian estimate; the runner-up is
+   refined along with it on the second-last level and takes over if it scores higher
+   there.  The velocity stays at the prior unless the window covers enough
    rotation to separate spin from translation.
 3. Confidence: the contrast gain over no rotation, the contrast margin of the winner
    over the best distinct rival (another axis or speed, e.g. an aliased omega of a
@@ -30,9 +30,10 @@ from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
-# change that ends them); the last level uses the whole window and gives its blur in ball pixels.
-# The IWE scale is capped at ``max_scale``.
-LEVELS = ((2.0, 12.0, 1.2, 500, 8, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 3e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
+# change that ends them); the first level screens the coarse candidates (a few steps each, all
+# together), the last uses the whole window and gives its blur in ball pixels.  The IWE scale is
+# capped at ``max_scale``.
+LEVELS = ((2.0, 12.0, 1.2, 500, 2, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 3e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
 
 
 @dataclass(frozen=True)
@@ -113,9 +114,9 @@ def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_ev
 def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
                   omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
                   omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
-                  coarse_events: int = 300, levels=LEVELS, max_scale: float = 2.0,
+                  coarse_events: int = 450, levels=LEVELS, max_scale: float = 2.0,
                   refine_velocity: bool | None = None, hemispheres: bool = False,
-                  screen_iterations: int = 2, prior_w_rad_s=None, prior_span: float = 2.2) -> FastResult:
+                  prior_w_rad_s=None, prior_span: float = 2.2) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -129,8 +130,6 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         Refine v on the last level; ``None``: when the window spans at least half a
         revolution (where rotation about an in-image axis no longer mimics
         translation) or no prior is known.
-    screen_iterations : int
-        BFGS iterations each coarse candidate takes before the leader is refined on.
     prior_w_rad_s : (3,), optional
         A trusted estimate of a neighbouring window of the same flight (rad/s): it joins the
         candidates and the coarse search keeps to speeds within a factor ``prior_span`` of it
@@ -162,13 +161,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    # every candidate takes a few steps, then the leader goes on to convergence
-    lifted = lift_moving(sub, v0)
-    results = sorted(maximise(sub, starts, v0, geometry(first), max_iterations=screen_iterations, ftol=first[5],
-                              lifted=lifted), key=lambda m: -m.contrast)
-    leader = maximise(sub, [results[0].w_rad_s], v0, geometry(first), max_iterations=first[4], ftol=first[5],
-                      inverse_hessians=[results[0].inverse_hessian], lifted=lifted)[0]
-    results[0] = leader if leader.contrast >= results[0].contrast else results[0]
+    # every candidate takes a few steps (the best goes on at the next level)
+    results = sorted(maximise(sub, starts, v0, geometry(first), max_iterations=first[4], ftol=first[5]),
+                     key=lambda m: -m.contrast)
     best = results[0]
     rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;

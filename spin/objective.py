@@ -64,8 +64,10 @@ class IweGeometry:
     """Raster of the IWE: ``scale`` pixels per ball pixel, Gaussian ``sigma`` (IWE px).
 
     The Gaussian kernel reaches ``truncate`` sigmas; the raster's margin around the disc
-    as far plus 2 px.  With ``hemispheres`` the points rotated to the far side (``z > 0``) go to a
-    second disc beside the first, so front and back textures do not overlap.
+    as far plus ``margin_px`` (2 px: room for the bilinear corners of the points the gradient
+    samples; nearest-pixel voting needs none).  With ``hemispheres`` the points rotated to the
+    far side (``z > 0``) go to a second disc beside the first, so front and back textures do
+    not overlap.
     """
 
     radius_px: float
@@ -73,10 +75,11 @@ class IweGeometry:
     sigma: float = 1.0
     hemispheres: bool = False
     truncate: float = 3.0
+    margin_px: int = 2
 
     @cached_property
     def pad(self) -> int:
-        return int(np.ceil(self.truncate * self.sigma)) + 2
+        return int(np.ceil(self.truncate * self.sigma)) + self.margin_px
 
     @cached_property
     def size(self) -> int:

@@ -121,8 +121,10 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
     img = np.bincount(idx.ravel(), wgt, h * stride).astype(np.float32)
     img = blur(img.reshape(h, stride), geometry.sigma, geometry.truncate)
     n_px = h * width
-    mean = img.sum(axis=0).reshape(images, width).sum(axis=1) / n_px  # float32 sums: ample here
-    var = np.einsum("ij,ij->j", img, img).reshape(images, width).sum(axis=1) / n_px - mean * mean
+    ones = np.ones(h, dtype=np.float32)
+    mean = (ones @ img).reshape(images, width).sum(axis=1) / n_px  # column sums as one product; float32: ample
+    np.multiply(img, img, out=img)
+    var = (ones @ img).reshape(images, width).sum(axis=1) / n_px - mean * mean
     return var.reshape(r, d + 1)
 
 
@@ -153,7 +155,8 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     omegas = omegas[max(0, int(np.searchsorted(omegas * window_s, min_rotation_rad)) - 1):]
     n_omega = len(omegas)
     directions = fibonacci_sphere(n_directions)
-    geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate)
+    geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate,
+                           margin_px=0)
     index = _span_rows(ev, omegas, span_rad, n_events)  # (M, n)
     pts, tau, weight = _lift_rows(ev, index, velocity_px_s)
     scores = np.empty((n_omega, n_directions))
