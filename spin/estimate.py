@@ -8,7 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from spin.fast import estimate_fast
+from spin.fast import FAST_EVENTS, estimate_fast
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
 from spin.search import coarse_search, distinct_candidates
@@ -89,7 +89,7 @@ def _jitter_px(n: int) -> np.ndarray:
 
 def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0, 0.0), rim_fraction: float = 1.0,
             max_events: int | None = None, min_events: int = 200, sensor_size=None,
-            dither: bool = False) -> tuple[BallEvents, np.ndarray]:
+            dither: bool = False, thin_to: int | None = None) -> tuple[BallEvents, np.ndarray]:
     """Select the events inside the moving circle and express them for warping.
 
     Returns the :class:`BallEvents` (float32; ``t_ref`` at the middle of the
@@ -101,6 +101,9 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     and an IWE of sharp, bilinearly voted events scores warps that keep slow-moving
     events on that lattice higher than it should, which pulls the estimate (by several
     degrees for axes near the image plane on windows of a few degrees' rotation).
+
+    With ``thin_to``, a window of more events keeps every k-th (the fewest k leaving at
+    most ``thin_to``) before anything else.
     """
     events = _check_events(events)
     cx, cy = (float(c) for c in center)
@@ -113,6 +116,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
                              f"{w}x{h}")
     if len(events) == 0:
         raise SpinInputError("events: empty array")
+    if thin_to is not None and len(events) > thin_to:
+        events = events[::-(-len(events) // thin_to)]
     t_us = np.ascontiguousarray(events["t"])  # one pass over the records; the rest reads plain arrays
     if (t_us[1:] < t_us[:-1]).any():
         order = np.argsort(t_us, kind="stable")
@@ -210,7 +215,9 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         Fewest events inside the circle accepted.
     **opts
         Passed to :func:`spin.fast.estimate_fast` or :func:`spin.paper.estimate_paper`
-        (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``).
+        (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``; ``fast``
+        takes ``thin_to``, default ``spin.fast.FAST_EVENTS`` = 24,000: a window of more events
+        is thinned evenly to at most that many).
 
     Raises
     ------
@@ -228,7 +235,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     if method == "fast":
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
                           max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size,
-                          dither=True)
+                          dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS))
         res = estimate_fast(ev, v0, velocity_known=known, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
     else:
