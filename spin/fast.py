@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +55,11 @@ class FastResult:
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
-    o1, o2 = np.linalg.norm(w1), np.linalg.norm(w2)
+    w1, w2 = np.asarray(w1, dtype=np.float64), np.asarray(w2, dtype=np.float64)
+    o1, o2 = math.sqrt(w1 @ w1), math.sqrt(w2 @ w2)
     if min(o1, o2) <= 0:
         return o1 == o2
-    cos = np.dot(w1, w2) / (o1 * o2)
-    return cos > np.cos(np.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
+    return (w1 @ w2) / (o1 * o2) > math.cos(math.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
 
 
 def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:

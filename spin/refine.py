@@ -7,6 +7,7 @@ few hundred events does.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +51,7 @@ def _bfgs(x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e-3, ftol: flo
     n_eval = 1
     h = None if h0 is None else np.array(h0, dtype=np.float64)
     while n_eval < max_evaluations:
-        gnorm = float(np.sqrt(g @ g))
+        gnorm = math.sqrt(g @ g)
         if gnorm < gtol:
             return x, f, True, n_eval, h
         p = -g * min(1.0, step0 / gnorm) if h is None else -(h @ g)
@@ -85,8 +86,9 @@ def _bfgs(x0: np.ndarray, *, max_evaluations: int, gtol: float = 1e-3, ftol: flo
                 h = np.eye(len(x)) * (sy / float(y @ y))
             rho = 1.0 / sy
             hy = h @ y
-            h = h - rho * (np.outer(s, hy) + np.outer(hy, s)) + (rho * rho * float(y @ hy) + rho) * np.outer(s, s)
-    return x, f, float(np.sqrt(g @ g)) < gtol, n_eval, h
+            # h - rho (s hy' + hy s') + (rho^2 y'hy + rho) s s', as two rank-one terms
+            h = h + s[:, None] * ((rho * rho * float(y @ hy) + rho) * s - rho * hy) - rho * (hy[:, None] * s)
+    return x, f, math.sqrt(g @ g) < gtol, n_eval, h
 
 
 def maximise(ev: BallEvents, starts_w_rad_s, v0_px_s, geometry: IweGeometry, *, refine_velocity: bool = False,
