@@ -30,12 +30,12 @@ from spin.objective import BallEvents, IweGeometry, contrast, iwe_parts, lift_mo
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
+# the fast method thins a window to at most this many events (its finest level uses 8,000)
+FAST_EVENTS = 24_000
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
 # change that ends them); the first level screens the coarse candidates (a few steps each, all
 # together), the last uses the whole window and gives its blur in ball pixels.  The IWE scale is
 # capped at ``max_scale``.
-# the fast method thins a window to about this many events (its finest level uses 8,000)
-FAST_EVENTS = 24_000
 LEVELS = ((2.0, 12.0, 1.2, 500, 2, 1e-4), (6.0, 40.0, 1.0, 2500, 6, 3e-4), (np.inf, 100.0, 0.55, 8000, 6, 1e-6))
 
 

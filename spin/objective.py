@@ -111,8 +111,8 @@ def _blur_twice_kernel(sigma: float, truncate: float) -> np.ndarray:
 
 
 def blur_twice(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
-    """``blur(blur(image))`` in one pass (zero outside the image: equal where the image is zero
-    within twice the kernel's reach of its edge)."""
+    """``blur(blur(image))`` in one pass (zero outside the image; equal to it when the image is
+    zero within the kernel's reach of its edge)."""
     kernel = _blur_twice_kernel(float(sigma), float(truncate))
     return cv2.sepFilter2D(image, -1, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
 

@@ -58,3 +58,15 @@ def test_to_columns_shapes_match_store_fields():
         assert cols[name].shape == (2, *shape)
         assert cols[name].dtype == np.dtype(dtype)
     assert spin.to_columns([])["axis"].shape == (0, 3)
+
+
+def test_long_windows_are_thinned_evenly_for_the_fast_method():
+    from spin.estimate import prepare
+
+    ev = _events(3000)
+    ball, t_sel = prepare(ev, (100.0, 80.0), 33.0, thin_to=1000)
+    assert len(ball) <= 1000 and len(ball) == len(t_sel)
+    assert np.array_equal(t_sel, ev["t"][::3][:len(t_sel)])  # every third event (all lie on the ball)
+    assert len(prepare(ev, (100.0, 80.0), 33.0)[0]) == 3000
+    est = spin.estimate_spin(ev, (100.0, 80.0), 30.0, velocity=(0.0, 0.0), thin_to=1000)
+    assert est.n_events <= 1000

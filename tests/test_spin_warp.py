@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spin.objective import BallEvents, IweGeometry, contrast, lift_moving, warp
+from spin.objective import BallEvents, IweGeometry, contrast, iwe_parts, lift_moving, warp
 from spin.warp import rotate_quaternion, rotate_rodrigues
 
 
@@ -83,3 +83,40 @@ def test_analytic_gradient_matches_finite_differences(hemispheres):
     assert np.linalg.norm(fd_w - gw) < 0.05 * np.linalg.norm(gw)
     assert np.linalg.norm(fd_v - gv) < 0.05 * np.linalg.norm(gv)
     assert f > 0
+
+
+def _ball_events(rng, n=3000, r=40.0):
+    p = _random_points(rng, n, r)
+    s = np.sort(rng.uniform(0, 2e-3, n))
+    return BallEvents(p[:, 0], p[:, 1], s, 1e-3 - s, rng.choice([-1.0, 1.0], n), r)
+
+
+@pytest.mark.parametrize("hemispheres", [False, True])
+@pytest.mark.parametrize("velocity", [(0.0, 0.0), (9000.0, -6000.0)])  # the second pushes events off the ball
+def test_several_angular_velocities_in_one_pass_equal_one_at_a_time(hemispheres, velocity):
+    ev = _ball_events(np.random.default_rng(4))
+    geo = IweGeometry(ev.radius_px, 0.5, 1.2, hemispheres)
+    ws = np.array([[300.0, -200.0, 500.0], [0.0, 0.0, 0.0], [-900.0, 50.0, 10.0]])
+    f, gw, gv = contrast(ev, ws, velocity, geo)
+    assert f.shape == (3,) and gw.shape == (3, 3) and gv.shape == (3, 2)
+    for i, w in enumerate(ws):
+        f1, gw1, gv1 = contrast(ev, w, velocity, geo)
+        assert f[i] == pytest.approx(f1, rel=1e-5)
+        assert np.allclose(gw[i], gw1, rtol=1e-4, atol=1e-6 * np.abs(gw1).max())
+        assert np.allclose(gv[i], gv1, rtol=1e-4, atol=1e-6 * np.abs(gv1).max())
+    assert np.allclose(contrast(ev, ws, velocity, geo, gradient=False), f)
+
+
+def test_contrast_is_the_variance_of_the_blurred_iwe():
+    ev = _ball_events(np.random.default_rng(5))
+    geo = IweGeometry(ev.radius_px, 0.5, 1.5)
+    w = np.array([300.0, -200.0, 500.0])
+    image = iwe_parts(ev, w, (0.0, 0.0), geo)[0]
+    assert image.shape == geo.shape
+    assert contrast(ev, w, (0.0, 0.0), geo, gradient=False) == pytest.approx(float(np.var(image, dtype=np.float64)),
+                                                                            rel=1e-4)
+    # the parts' IWEs are the IWEs of every other event
+    even, odd = iwe_parts(ev, w, (0.0, 0.0), geo, 2)
+    assert np.allclose(even, iwe_parts(ev.take(slice(0, None, 2)), w, (0.0, 0.0), geo)[0], atol=1e-5)
+    assert np.allclose(odd, iwe_parts(ev.take(slice(1, None, 2)), w, (0.0, 0.0), geo)[0], atol=1e-5)
+    assert np.allclose(even + odd, image, atol=1e-4)
