@@ -62,6 +62,11 @@ def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
     return (w1 @ w2) / (o1 * o2) > math.cos(math.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
 
 
+def _same_solution(w1, w2) -> bool:
+    """Whether two angular velocities are one solution (within 10 deg and 10 %), not rivals."""
+    return _same(w1, w2, 10.0, 1.1)
+
+
 def _half_agreement(ev: BallEvents, w, v, geometry: IweGeometry) -> float:
     """Correlation of the IWEs of the even and the odd events (-1..1).
 
@@ -168,7 +173,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
     results = sorted(maximise(sub, starts, v0, geometry(first), max_iterations=first[4], ftol=first[5]),
                      key=lambda m: -m.contrast)
     best = results[0]
-    rival = next((m for m in results[1:] if not _same(m.w_rad_s, best.w_rad_s, 10.0, 1.1)), None)
+    # a rival is another solution: at least 10 deg or 10 % away (nearer, it is the same maximum)
+    rival = next((m for m in results[1:] if not _same_solution(m.w_rad_s, best.w_rad_s)), None)
     # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
     # the runner-up is refined along with it on the second-last level's events, to measure the margin
     # (it stops where it comes within reach of the winner: no rival then), and takes over where it
@@ -188,7 +194,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         # an estimated (not tracked) velocity needs more steps: rotation and translation trade off slowly
         runs = maximise(sub, [m.w_rad_s for m in runs], v, geometry(level), refine_velocity=rv,
                         max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
-                        inverse_hessians=[m.inverse_hessian for m in runs], lifted=lifted, stop_same=_same)
+                        inverse_hessians=[m.inverse_hessian for m in runs], lifted=lifted,
+                        stop_same=_same)
         best = runs[0]
         if len(runs) > 1:
             rival = runs[1]
@@ -198,7 +205,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
         if li == len(levels) - 2:
             still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False, lifted=lifted)
             gain = 1.0 - still / max(best.contrast, 1e-30)
-            if rival is not None and _same(rival.w_rad_s, w):
+            if rival is not None and _same_solution(rival.w_rad_s, w):
                 rival = None
             elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
