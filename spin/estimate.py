@@ -73,11 +73,15 @@ def _check_events(events) -> np.ndarray:
     return events
 
 
+_JITTER_REACH_PX = float(np.sqrt(0.5))  # farthest a dithered event moves
+
+
 @lru_cache(maxsize=1)
 def _jitter_table(n: int = 1 << 16) -> np.ndarray:
-    """Fixed uniform offsets in [-0.5, 0.5) px, float32 (2, n)."""
+    """Fixed uniform offsets in [-0.5, 0.5) px, float32 (2, n), read-only."""
     table = np.random.default_rng(0).random((2, n), dtype=np.float32)
     table -= np.float32(0.5)
+    table.flags.writeable = False
     return table
 
 
@@ -102,8 +106,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     events on that lattice higher than it should, which pulls the estimate (by several
     degrees for axes near the image plane on windows of a few degrees' rotation).
 
-    With ``thin_to``, a window of more events keeps every k-th (the fewest k leaving at
-    most ``thin_to``) before anything else.
+    With ``thin_to``, more events inside the circle (after ``max_events``) keep every k-th
+    (the fewest k leaving at most ``thin_to``).
     """
     events = _check_events(events)
     cx, cy = (float(c) for c in center)
@@ -116,8 +120,8 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
                              f"{w}x{h}")
     if len(events) == 0:
         raise SpinInputError("events: empty array")
-    if thin_to is not None and len(events) > thin_to:
-        events = events[::-(-len(events) // thin_to)]
+    if thin_to is not None and thin_to < 1:
+        raise SpinInputError(f"thin_to: {thin_to} must be at least 1")
     t_us = np.ascontiguousarray(events["t"])  # one pass over the records; the rest reads plain arrays
     if (t_us[1:] < t_us[:-1]).any():
         order = np.argsort(t_us, kind="stable")
@@ -137,13 +141,17 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     dx *= dx
     dy *= dy
     dx += dy
-    idx = np.flatnonzero(dx <= f32((rim_fraction * r) ** 2))
+    # dithered events may move by up to sqrt(0.5) px: select them so that they stay on the ball
+    rim = min(rim_fraction * r, r - _JITTER_REACH_PX) if dither else rim_fraction * r
+    idx = np.flatnonzero(dx <= f32(rim * rim))
     if len(idx) == 0:
         raise SpinInputError(f"circle: no events inside the circle centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px")
     if max_events is not None:
         idx = idx[:max_events]
     if len(idx) < min_events:
         raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
+    if thin_to is not None and len(idx) > thin_to:
+        idx = idx[::-(-len(idx) // thin_to)]
     s = s[idx]
     x = x[idx]
     y = y[idx]

@@ -201,6 +201,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
             rival = runs[1]
             if rival.contrast > best.contrast:
                 best, rival = rival, best
+            if runs[1].stopped:  # it reached the winner's maximum: no rival
+                rival = None
         w, v = best.w_rad_s, best.v_px_s
         if li == len(levels) - 2:
             still = contrast(sub, np.zeros(3), v, geometry(level), gradient=False, lifted=lifted)

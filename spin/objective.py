@@ -91,10 +91,12 @@ class IweGeometry:
 
     @cached_property
     def holds_sphere(self) -> bool:
-        """Whether every point of the lifted sphere (norm up to ``1.005 r``) votes inside the raster."""
+        """Whether every point of the lifted sphere (norm up to ``1.005 r``) votes at least the kernel's
+        reach inside the raster's edge (so that clipping would leave it alone)."""
         reach = 1.005 * self.radius_px * self.scale
         centre = self.radius_px * self.scale + self.pad
-        return centre - reach >= 0.0 and centre + reach <= self.size - 2.001
+        kernel = self.pad - self.margin_px
+        return centre - reach >= kernel and centre + reach <= self.size - 2.001 - kernel
 
 
 def blur(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.ndarray:
@@ -118,9 +120,15 @@ def blur_twice(image: np.ndarray, sigma: float, truncate: float = 3.0) -> np.nda
 
 
 @lru_cache(maxsize=64)
-def _raster_constants(h: int, w: int, dtype):
-    """Coordinate limits (2, 1, 1) of an ``h`` x ``w`` raster and its four corners' index offsets (4, 1)."""
-    return np.array([[[w - 1.001]], [[h - 1.001]]], dtype=dtype), np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+def _corner_offsets(w: int) -> np.ndarray:
+    """Flat index offsets (4, 1) of the four bilinear corners on a raster ``w`` wide."""
+    return np.array([[0], [1], [w], [w + 1]], dtype=np.intp)
+
+
+@lru_cache(maxsize=64)
+def _clip_limits(h: int, w: int, inset: int, dtype) -> np.ndarray:
+    """Upper coordinate limits (2, 1, 1) of an ``h`` x ``w`` raster, ``inset`` px inside its edge."""
+    return np.array([[[w - 1.001 - inset]], [[h - 1.001 - inset]]], dtype=dtype)
 
 
 def _bilinear(uv, weight, shape):
@@ -130,11 +138,12 @@ def _bilinear(uv, weight, shape):
     weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
     """
     h, w = shape
-    offsets = _raster_constants(h, w, uv.dtype)[1]
     base = np.floor(uv)
     frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
-    idx = (base[1] * w + base[0]).astype(np.intp)  # exact: the raster has far fewer than 2**24 pixels
-    corners = idx + offsets
+    idx = base[1].astype(np.intp)
+    idx *= w
+    idx += base[0].astype(np.intp)
+    corners = idx + _corner_offsets(w)
     wgt = weight.astype(np.float32, copy=False)
     b = wgt * frac[1]
     a = wgt - b
@@ -212,7 +221,8 @@ def _iwe_coords(q, geometry: IweGeometry, clip: bool = True):
     """IWE coordinates (2, K N) of scaled points ``q`` (K, 3, N) relative to the centre.
 
     The K IWEs lie side by side in one raster of K times ``geometry.shape``'s width; with ``clip``
-    points off their IWE (possible only for wild velocities) are held at its border.
+    points off their IWE (possible only for wild velocities) are held the kernel's reach inside
+    its edge (where neither blur reaches the neighbouring IWE or the raster's edge).
     """
     k, _, n_ev = q.shape
     dt = q.dtype.type
@@ -222,7 +232,8 @@ def _iwe_coords(q, geometry: IweGeometry, clip: bool = True):
         uv[0] += (q[:, 2] > 0) * dt(geometry.size)
     h, width = geometry.shape
     if clip:
-        np.clip(uv, 0.0, _raster_constants(h, width, q.dtype)[0], out=uv)  # (3x faster than np.maximum then np.minimum)
+        reach = geometry.pad - geometry.margin_px  # the kernel's
+        np.clip(uv, reach, _clip_limits(h, width, reach, q.dtype), out=uv)  # (3x faster than np.maximum, np.minimum)
     if k > 1:
         uv[0] += (np.arange(k, dtype=q.dtype) * dt(width))[:, None]
     return uv.reshape(2, k * n_ev)

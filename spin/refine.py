@@ -20,7 +20,8 @@ class LocalMax:
     """Result of one local maximisation: ``w`` (rad/s, 3), ``v`` (px/s, 2), contrast, success.
 
     ``success``: the gradient fell below ``gtol`` or a step changed the contrast by less than
-    ``ftol`` (relative) before the evaluation budget ran out.
+    ``ftol`` (relative) before the evaluation budget ran out.  ``stopped``: ended by
+    :func:`maximise`'s ``stop_same`` (it reached the first start's maximum).
     """
 
     w_rad_s: np.ndarray
@@ -29,6 +30,7 @@ class LocalMax:
     success: bool
     n_evaluations: int
     inverse_hessian: np.ndarray | None = None
+    stopped: bool = False
 
 
 class _Stop(Exception):
@@ -114,8 +116,9 @@ def maximise(ev: BallEvents, starts_w_rad_s, v0_px_s, geometry: IweGeometry, *, 
     lifted : tuple, optional
         ``lift_moving(ev, v0_px_s)`` if already computed (used only with a fixed velocity).
     stop_same : callable, optional
-        ``stop_same(w, w_first) -> bool``: a start other than the first ends (not converged) once
-        its latest point and the first start's latest point satisfy it (e.g. the same maximum).
+        ``stop_same(w, w_first) -> bool``: a start other than the first ends (not converged,
+        :attr:`LocalMax.stopped`) once its latest point and the first start's latest point
+        satisfy it (e.g. they reach the same maximum).
     """
     starts = [np.asarray(w, dtype=np.float64) for w in starts_w_rad_s]
     if refine_velocity and len(starts) != 1:
@@ -140,6 +143,7 @@ def maximise(ev: BallEvents, starts_w_rad_s, v0_px_s, geometry: IweGeometry, *, 
         norms.append(None)  # 1 / contrast at the start, set by the first evaluation
     pending = {i: run.send(None) for i, run in enumerate(runs)}
     done = {}
+    stopped = set()
     latest = {}  # the latest point evaluated of each start (rad/s)
     while pending:
         order = list(pending)
@@ -166,10 +170,11 @@ def maximise(ev: BallEvents, starts_w_rad_s, v0_px_s, geometry: IweGeometry, *, 
                 except StopIteration as stop:
                     done[i] = stop.value
                 del pending[i]
+                stopped.add(i)
     out = []
     for i, w0 in enumerate(starts):
         x, f, converged, n_eval, h = done[i]
         v = v0 + x[3:5] * v_unit if refine_velocity else v0
         out.append(LocalMax(w0 + x[:3] * w_unit, np.asarray(v, dtype=np.float64), float(-f / norms[i]), converged,
-                            n_eval, None if h is None else h[:3, :3]))
+                            n_eval, None if h is None else h[:3, :3], i in stopped))
     return out

@@ -70,3 +70,12 @@ def test_long_windows_are_thinned_evenly_for_the_fast_method():
     assert len(prepare(ev, (100.0, 80.0), 33.0)[0]) == 3000
     est = spin.estimate_spin(ev, (100.0, 80.0), 30.0, velocity=(0.0, 0.0), thin_to=1000)
     assert est.n_events <= 1000
+    # only the events on the ball count (not the background elsewhere), after max_events
+    background = _events(30_000, cx=400.0, cy=300.0, r=60.0, seed=1)
+    both = np.sort(np.concatenate([ev, background]), order="t")
+    ball, t_sel = prepare(both, (100.0, 80.0), 33.0, thin_to=1000, min_events=2500)
+    assert 750 < len(ball) <= 1000
+    ball, t_sel = prepare(both, (100.0, 80.0), 33.0, max_events=1500, thin_to=1000)
+    assert len(ball) == 750 and t_sel[-1] <= ev["t"][1499]
+    with pytest.raises(spin.SpinInputError, match="thin_to"):
+        prepare(ev, (100.0, 80.0), 33.0, thin_to=0)

@@ -45,4 +45,5 @@ def test_a_start_that_reaches_the_first_one_stops():
     stopped = maximise(ev, starts, (0.0, 0.0), geo, max_iterations=10, stop_same=same)
     assert np.allclose(stopped[0].w_rad_s, free[0].w_rad_s)  # the first start is never stopped
     assert stopped[1].n_evaluations < free[1].n_evaluations and not stopped[1].success
+    assert stopped[1].stopped and not stopped[0].stopped and not free[1].stopped
     assert stopped[1].contrast <= free[1].contrast + 1e-12

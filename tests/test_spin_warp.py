@@ -92,13 +92,15 @@ def _ball_events(rng, n=3000, r=40.0):
 
 
 @pytest.mark.parametrize("hemispheres", [False, True])
-@pytest.mark.parametrize("velocity", [(0.0, 0.0), (9000.0, -6000.0)])  # the second pushes events off the ball
+# the last two velocities push events off the ball: down-left, and right (where a half turn about z
+# then holds the next IWE's events at its left edge, next to the first IWE's right edge)
+@pytest.mark.parametrize("velocity", [(0.0, 0.0), (9000.0, -6000.0), (-20000.0, 0.0)])
 def test_several_angular_velocities_in_one_pass_equal_one_at_a_time(hemispheres, velocity):
     ev = _ball_events(np.random.default_rng(4))
     geo = IweGeometry(ev.radius_px, 0.5, 1.2, hemispheres)
-    ws = np.array([[300.0, -200.0, 500.0], [0.0, 0.0, 0.0], [-900.0, 50.0, 10.0]])
+    ws = np.array([[300.0, -200.0, 500.0], [0.0, 0.0, np.pi / 1e-3], [0.0, 0.0, 0.0], [-900.0, 50.0, 10.0]])
     f, gw, gv = contrast(ev, ws, velocity, geo)
-    assert f.shape == (3,) and gw.shape == (3, 3) and gv.shape == (3, 2)
+    assert f.shape == (4,) and gw.shape == (4, 3) and gv.shape == (4, 2)
     for i, w in enumerate(ws):
         f1, gw1, gv1 = contrast(ev, w, velocity, geo)
         assert f[i] == pytest.approx(f1, rel=1e-5)
