@@ -224,8 +224,8 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     **opts
         Passed to :func:`spin.fast.estimate_fast` or :func:`spin.paper.estimate_paper`
         (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``; ``fast``
-        takes ``thin_to``, default ``spin.fast.FAST_EVENTS`` = 24,000: a window of more events
-        is thinned evenly to at most that many).
+        takes ``thin_to``, default ``spin.fast.FAST_EVENTS`` = 24,000: more events inside the
+        circle are thinned evenly to at most that many).
 
     Raises
     ------

@@ -30,7 +30,7 @@ from spin.objective import BallEvents, IweGeometry, contrast, iwe_parts, lift_mo
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
 
-# the fast method thins a window to at most this many events (its finest level uses 8,000)
+# the fast method thins a window's ball events to at most this many (its finest level uses 8,000)
 FAST_EVENTS = 24_000
 # (rotation span rad, IWE radius px, blur sigma IWE px, events, BFGS iterations, relative contrast
 # change that ends them); the first level screens the coarse candidates (a few steps each, all
