@@ -12,14 +12,12 @@ it gives ``d contrast / d w`` (``w = omega * axis``, rad/s) and ``d contrast / d
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
-import math
-
 import cv2
 import numpy as np
-
 
 
 @dataclass(frozen=True)
@@ -338,8 +336,8 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     sums_b = (acr @ one_cos[:, :, None]).tolist()
     sums_c = (acr @ (phi - sin)[:, :, None]).tolist()
     grad_w = []
+    scale_a = 2.0 / size
     for i in range(k):
-        scale_a = 2.0 / size
         scale_bc = scale_a / omega[i] if omega[i] > 0 else scale_a  # (B and C are 0 at omega = 0)
         nxb = _axis_cross(n[i], [scale_bc * c[0] for c in sums_b[i]])
         nxnxc = _axis_cross(n[i], _axis_cross(n[i], [scale_bc * c[0] for c in sums_c[i]]))
