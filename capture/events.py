@@ -1,14 +1,22 @@
-"""Event and trigger dtypes shared by every module (see ``conventions.md``).
+"""The data contracts shared by every module (see ``docs/conventions.md``), declared once.
 
-A batch of change-detection (CD) events is a 1-D NumPy structured array of
-:data:`EVENT_DTYPE`; external trigger events use :data:`TRIGGER_DTYPE`.
-Times are integer microseconds on the event camera's clock, non-decreasing
-within a batch.
+- :data:`EVENT_DTYPE`, :data:`TRIGGER_DTYPE`: a batch of change-detection (CD) events is a
+  1-D NumPy structured array of :data:`EVENT_DTYPE`; external trigger events use
+  :data:`TRIGGER_DTYPE`. Times are integer microseconds on the event camera's clock,
+  non-decreasing within a batch.
+- :data:`TRACK_COLUMNS` and :class:`Track`: the ball track (detection's output, the session
+  store's ``track/`` table, the review's ball circle).
+- :data:`SPIN_COLUMNS` and :func:`spin_table`: spin estimates as columns (the spin
+  estimator's output, the session store's ``spin/`` table, the review's plots).
+
+A table is a ``dict`` of equal-length NumPy columns; ``*_COLUMNS`` map each column name to
+``(dtype, shape of one row)``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -97,3 +105,172 @@ def is_sorted(events: np.ndarray) -> bool:
     """True if ``events["t"]`` is non-decreasing."""
     t = events["t"]
     return bool(t.size < 2 or np.all(t[1:] >= t[:-1]))
+
+
+# -- tables ------------------------------------------------------------------------------------
+
+TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
+    "t_us": ("<i8", ()), "cx": ("<f8", ()), "cy": ("<f8", ()), "r": ("<f8", ()),
+    "vx": ("<f8", ()), "vy": ("<f8", ()), "score": ("<f4", ()), "flight": ("<i4", ())}
+"""Ball track: update time µs, centre and radius px, centre velocity px/s, score 0..1, flight number."""
+
+SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
+    "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
+    "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
+    "confidence": ("<f4", ())}
+"""Spin estimates: window µs (end exclusive), unit axis in the camera frame, rad/s, rev/s,
+centre velocity px/s, confidence 0..1."""
+
+
+def empty_table(columns: Mapping[str, tuple[str, tuple]], n: int = 0) -> dict[str, np.ndarray]:
+    """Zero-filled table of ``n`` rows with the given columns (e.g. :data:`SPIN_COLUMNS`)."""
+    return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in columns.items()}
+
+
+def concat_tables(parts: Iterable[Mapping[str, np.ndarray]], columns: Mapping[str, tuple[str, tuple]],
+                  sort_by: str | None = None) -> dict[str, np.ndarray]:
+    """Rows of ``parts`` one after another (stably sorted by column ``sort_by`` if given)."""
+    parts = [p for p in parts if len(next(iter(p.values())))]
+    if not parts:
+        return empty_table(columns)
+    out = {k: np.concatenate([np.asarray(p[k], dtype) for p in parts]) for k, (dtype, _) in columns.items()}
+    if sort_by is not None:
+        order = np.argsort(out[sort_by], kind="stable")
+        out = {k: v[order] for k, v in out.items()}
+    return out
+
+
+def spin_table(spin) -> dict[str, np.ndarray]:
+    """Spin estimates as a table of :data:`SPIN_COLUMNS`.
+
+    Parameters
+    ----------
+    spin : mapping, object or iterable of objects
+        A mapping of columns, one estimate, or estimates: any object with the attributes
+        named in :data:`SPIN_COLUMNS` (e.g. ``spin.SpinEstimate``).
+
+    Raises
+    ------
+    KeyError
+        A column is missing.
+    """
+    if isinstance(spin, Mapping):
+        rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS}
+    else:
+        items = [spin] if hasattr(spin, "axis") else list(spin)
+        rows = {k: [getattr(s, k) for s in items] for k in SPIN_COLUMNS}
+    n = len(rows["t_start_us"])
+    return {k: np.asarray(rows[k], dtype=dtype).reshape(n, *shape) for k, (dtype, shape) in SPIN_COLUMNS.items()}
+
+
+@dataclass
+class Track:
+    """Ball track, one row per track update, sorted by time; the columns of :data:`TRACK_COLUMNS`.
+
+    Attributes
+    ----------
+    t_us : ndarray of int64, shape (N,)
+        Update time, µs on the event clock.
+    cx, cy, r : ndarray of float64, shape (N,)
+        Ball circle (centre and radius) in pixels at ``t_us``.
+    vx, vy : ndarray of float64, shape (N,)
+        Image velocity of the centre, px/s.
+    score : ndarray of float32, shape (N,)
+        Confidence of the update, 0..1.
+    flight : ndarray of int32, shape (N,)
+        Flight number (a new one each time the ball enters, is hit or bounces).
+    """
+
+    t_us: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    r: np.ndarray
+    vx: np.ndarray
+    vy: np.ndarray
+    score: np.ndarray
+    flight: np.ndarray
+
+    def __post_init__(self):
+        for f in fields(self):
+            dtype = TRACK_COLUMNS[f.name][0]
+            setattr(self, f.name, np.asarray(getattr(self, f.name), dtype=dtype).reshape(-1))
+        n = {len(getattr(self, f.name)) for f in fields(self)}
+        if len(n) > 1:
+            raise ValueError("track columns have different lengths")
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    @classmethod
+    def empty(cls) -> Track:
+        return cls(**empty_table(TRACK_COLUMNS))
+
+    @classmethod
+    def from_columns(cls, columns) -> Track:
+        """From a mapping with the :data:`TRACK_COLUMNS` (or an object with those attributes)."""
+        if isinstance(columns, cls):
+            return columns
+        if isinstance(columns, Mapping):
+            return cls(**{name: columns[name] for name in TRACK_COLUMNS})
+        return cls(**{name: getattr(columns, name) for name in TRACK_COLUMNS})
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The track as a table of :data:`TRACK_COLUMNS`."""
+        return {name: getattr(self, name) for name in TRACK_COLUMNS}
+
+    def flight_ids(self) -> np.ndarray:
+        """Distinct flight numbers in order of appearance."""
+        _, first = np.unique(self.flight, return_index=True)
+        return self.flight[np.sort(first)]
+
+    @classmethod
+    def concat(cls, tracks) -> Track:
+        """Rows of ``tracks`` one after another (an empty track if there are none)."""
+        return cls(**concat_tables([t.columns() for t in tracks], TRACK_COLUMNS))
+
+    def select(self, mask) -> Track:
+        """Rows where ``mask`` is true (or the given indices)."""
+        return Track(**{name: getattr(self, name)[mask] for name in TRACK_COLUMNS})
+
+    def at(self, t_us: float, flight: int | None = None) -> tuple[float, float, float, float, float]:
+        """Circle and velocity ``(cx, cy, r, vx, vy)`` at time ``t_us`` (µs).
+
+        Linear interpolation between the updates of one flight (the flight of the
+        nearest update unless ``flight`` is given); outside a flight's span the
+        centre is extrapolated with the end velocity.
+        """
+        if len(self) == 0:
+            raise ValueError("empty track")
+        if flight is None:
+            flight = int(self.flight[np.argmin(np.abs(self.t_us - t_us))])
+        rows = self.select(self.flight == flight)
+        t = rows.t_us.astype(np.float64)
+        if t_us <= t[0] or t_us >= t[-1] or len(rows) == 1:
+            i = 0 if t_us <= t[0] else len(rows) - 1
+            dt_s = (t_us - t[i]) * 1e-6
+            return (float(rows.cx[i] + rows.vx[i] * dt_s), float(rows.cy[i] + rows.vy[i] * dt_s),
+                    float(rows.r[i]), float(rows.vx[i]), float(rows.vy[i]))
+        return tuple(float(np.interp(t_us, t, getattr(rows, c))) for c in ("cx", "cy", "r", "vx", "vy"))
+
+    def circles_at(self, t_us) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Ball circles at times ``t_us`` (µs, shape (N,)) by linear interpolation inside each
+        flight's span (no extrapolation, unlike :meth:`at`).
+
+        Returns
+        -------
+        cx, cy, r : ndarray of float64, shape (N,)
+            Circle in pixels (NaN where invalid).
+        valid : ndarray of bool, shape (N,)
+            True where ``t_us`` lies within a flight's first and last track update.
+        """
+        t = np.asarray(t_us, dtype=np.float64).reshape(-1)
+        out = np.full((3, len(t)), np.nan)
+        valid = np.zeros(len(t), dtype=bool)
+        for flight in self.flight_ids():
+            rows = self.select(self.flight == flight)
+            ft = rows.t_us.astype(np.float64)
+            m = (t >= ft[0]) & (t <= ft[-1]) & ~valid
+            for k, col in enumerate((rows.cx, rows.cy, rows.r)):
+                out[k, m] = np.interp(t[m], ft, col)
+            valid |= m
+        return out[0], out[1], out[2], valid

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture.events import concatenate, time_slice
-from detect import BallTracker
-from detect.track import Track, spin_windows
+from capture.events import Track, concatenate, time_slice
+from detect import BallTracker, spin_windows
 
 
 @dataclass

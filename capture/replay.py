@@ -28,12 +28,12 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 import spin
-from capture.events import concatenate
+from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
 from capture.frames import attach_video, iter_session_frames
 from capture.workers import SharedWork
-from capture.session import SPIN_FIELDS, SessionError, open_session, update_session
+from capture.session import SessionError, open_session, update_session
 from detect import BallTracker
-from detect.track import Track, spin_windows
+from detect.track import spin_windows
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -317,7 +317,7 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     Returns
     -------
     dict
-        Spin columns (``capture.session.SPIN_FIELDS``), one row per spin window.
+        Spin columns (``capture.events.SPIN_COLUMNS``), one row per spin window.
     """
     options = options or ReplayOptions()
     if starts_us is not None:
@@ -325,14 +325,14 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     windows = spin_windows(events, track, window_us=options.window_us, step_us=options.step_us,
                            min_events=options.min_events, max_events=options.max_events,
                            max_window_us=options.max_window_us, starts_us=starts_us)
-    return spin.to_columns(spin.estimate_windows(windows, method=options.method))
+    return spin_table(spin.estimate_windows(windows, method=options.method))
 
 
 def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
     """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out).
     Its windows are estimated in order, each warm-started from the one before (see
     ``spin.estimate_windows``)."""
-    return spin.to_columns(spin.estimate_windows(part.windows, method=options.method))
+    return spin_table(spin.estimate_windows(part.windows, method=options.method))
 
 
 def _spin_unit(args) -> dict[str, np.ndarray]:
@@ -353,15 +353,6 @@ def _one_thread_per_worker() -> None:
     oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this)."""
     cv2.setNumThreads(1)
     threadpool_limits(1)
-
-
-def _concat_columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    parts = [p for p in parts if len(p["t_start_us"])]
-    if not parts:
-        return {k: np.zeros((0, *shape), dtype) for k, (dtype, shape) in SPIN_FIELDS.items()}
-    columns = {k: np.concatenate([p[k] for p in parts]) for k in SPIN_FIELDS}
-    order = np.argsort(columns["t_start_us"], kind="stable")
-    return {k: v[order] for k, v in columns.items()}
 
 
 @dataclass
@@ -397,7 +388,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
                     initializer=_one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
-        spin_columns = _concat_columns(work.results(progress, desc="spin"))
+        spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     writer = update_session(session_path)
     writer.write_track(track.columns())
     writer.write_spin(spin_columns)

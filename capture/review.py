@@ -49,9 +49,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from capture.events import EVENT_DTYPE, concatenate
-from capture.session import SPIN_FIELDS, TRACK_FIELDS, Session, SessionError, open_session
-from detect.track import Track
+from capture.events import EVENT_DTYPE, SPIN_COLUMNS, Track, concatenate
+from capture.session import Session, SessionError, open_session
 
 log = logging.getLogger(__name__)
 
@@ -165,18 +164,18 @@ def _map_circles(event_to_frame, cx, cy, r) -> tuple[np.ndarray, np.ndarray, np.
 
 
 def spin_columns(spin) -> dict[str, np.ndarray]:
-    """Spin columns (:data:`capture.session.SPIN_FIELDS`) from a mapping of columns, one estimate or a list.
+    """Spin columns (:data:`capture.events.SPIN_COLUMNS`) from a mapping of columns, one estimate or a list.
 
     An estimate is any object with the attributes ``t_start_us``, ``t_end_us``, ``axis``,
     ``omega_rad_s``, ``rps`` and ``confidence`` (``velocity_px_s`` optional).
     """
     if isinstance(spin, Mapping):
-        cols = {k: np.asarray(spin[k]) for k in SPIN_FIELDS if k in spin}
+        cols = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS if k in spin}
     else:
         items = [spin] if hasattr(spin, "axis") else list(spin)
         if not items:
-            return {k: np.zeros((0, *shape), dtype) for k, (dtype, shape) in SPIN_FIELDS.items()}
-        cols = {k: np.asarray([getattr(s, k) for s in items]) for k in SPIN_FIELDS
+            return {k: np.zeros((0, *shape), dtype) for k, (dtype, shape) in SPIN_COLUMNS.items()}
+        cols = {k: np.asarray([getattr(s, k) for s in items]) for k in SPIN_COLUMNS
                 if all(hasattr(s, k) for s in items)}
     missing = [k for k in ("t_start_us", "t_end_us", "axis", "rps") if k not in cols]
     if missing:
@@ -192,7 +191,7 @@ def _as_track(track) -> Track:
         return track
     if isinstance(track, Mapping):
         return Track.from_columns(track)
-    return Track(**{k: getattr(track, k) for k in TRACK_FIELDS})
+    return Track.from_columns(track)
 
 
 def session_recording_id(session: Session) -> str:
@@ -762,7 +761,7 @@ class LiveReview:
         elif kind == "track":
             rows = _as_track(payload)
             lg.track(rows, clear_after_flights=False)
-            both = Track(**{k: np.r_[getattr(self._track, k), getattr(rows, k)] for k in TRACK_FIELDS})
+            both = Track.concat([self._track, rows])
             self._track = both.select(slice(-4096, None))
         elif kind == "spin":
             lg.spin(spin_columns(payload), self._track)

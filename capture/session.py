@@ -7,8 +7,8 @@ Layout (names are fixed; other tools rely on them)::
         index/ms_to_idx             first event index with t >= (t0_ms + k) * 1000
         triggers/{t,id,p}           external trigger events
         frames/{t_us}               frame timestamps on the event clock (+ optional image)
-        track/{t_us,cx,cy,r,vx,vy,score,flight}
-        spin/{t_start_us,t_end_us,axis,omega_rad_s,rps,velocity_px_s,confidence}
+        track/{t_us,cx,cy,r,vx,vy,score,flight}           capture.events.TRACK_COLUMNS
+        spin/{t_start_us,t_end_us,axis,omega_rad_s,...}   capture.events.SPIN_COLUMNS
 
 Every table is a group of arrays sharing their first axis plus an attribute
 ``n_committed``. A writer resizes, writes the data and only then raises
@@ -35,7 +35,7 @@ import zarr
 from zarr.codecs import BloscCodec
 from zarr.codecs.numcodecs import Delta
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
+from capture.events import EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
@@ -49,14 +49,6 @@ EVENT_CHUNK = 1 << 20
 """Events per chunk of each ``events/*`` array."""
 TABLE_CHUNK = 1 << 16
 """Rows per chunk of the smaller tables."""
-
-TRACK_FIELDS = {"t_us": "<i8", "cx": "<f8", "cy": "<f8", "r": "<f8", "vx": "<f8", "vy": "<f8",
-                "score": "<f4", "flight": "<i4"}
-"""Ball track columns: time µs, centre/radius px, velocity px/s, score, flight number."""
-SPIN_FIELDS = {"t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
-               "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
-               "confidence": ("<f4", ())}
-"""Spin estimate columns: window µs, unit axis (camera frame), rad/s, rev/s, px/s, 0..1."""
 
 _EVENT_COLUMNS = {"t": ("<i8", ()), "x": ("<u2", ()), "y": ("<u2", ()), "p": ("i1", ())}
 _TRIGGER_COLUMNS = {"t": ("<i8", ()), "id": ("u1", ()), "p": ("i1", ())}
@@ -234,22 +226,20 @@ class SessionWriter:
         return _Table(self.root.require_group(name), columns, TABLE_CHUNK)
 
     def append_track(self, track) -> None:
-        """Append ball-track rows (mapping or object with the :data:`TRACK_FIELDS` columns)."""
-        self._table("track", {k: (v, ()) for k, v in TRACK_FIELDS.items()}).append(
-            _columns_of(track, TRACK_FIELDS))
+        """Append ball-track rows (mapping or object with the ``capture.events.TRACK_COLUMNS``)."""
+        self._table("track", TRACK_COLUMNS).append(_columns_of(track, TRACK_COLUMNS))
 
     def write_track(self, track) -> None:
         """Replace the whole ball track."""
-        self._table("track", {k: (v, ()) for k, v in TRACK_FIELDS.items()}).replace(
-            _columns_of(track, TRACK_FIELDS))
+        self._table("track", TRACK_COLUMNS).replace(_columns_of(track, TRACK_COLUMNS))
 
     def append_spin(self, spin) -> None:
-        """Append spin-estimate rows (mapping or object with the :data:`SPIN_FIELDS` columns)."""
-        self._table("spin", SPIN_FIELDS).append(_columns_of(spin, SPIN_FIELDS))
+        """Append spin-estimate rows (mapping or object with the ``capture.events.SPIN_COLUMNS``)."""
+        self._table("spin", SPIN_COLUMNS).append(_columns_of(spin, SPIN_COLUMNS))
 
     def write_spin(self, spin) -> None:
         """Replace all spin estimates."""
-        self._table("spin", SPIN_FIELDS).replace(_columns_of(spin, SPIN_FIELDS))
+        self._table("spin", SPIN_COLUMNS).replace(_columns_of(spin, SPIN_COLUMNS))
 
     def append_frames(self, t_us, images: np.ndarray | None = None) -> None:
         """Append frame timestamps (µs, event clock) and, optionally, the frames (N, H, W[, 3]) uint8."""
@@ -479,12 +469,12 @@ class Session:
         return out
 
     def track(self) -> dict[str, np.ndarray]:
-        """Ball track columns (:data:`TRACK_FIELDS`); empty arrays if none stored."""
-        return self._table("track", {k: (v, ()) for k, v in TRACK_FIELDS.items()})
+        """Ball track table (``capture.events.TRACK_COLUMNS``); empty columns if none stored."""
+        return self._table("track", TRACK_COLUMNS)
 
     def spin(self) -> dict[str, np.ndarray]:
-        """Spin estimate columns (:data:`SPIN_FIELDS`); empty arrays if none stored."""
-        return self._table("spin", SPIN_FIELDS)
+        """Spin table (``capture.events.SPIN_COLUMNS``); empty columns if none stored."""
+        return self._table("spin", SPIN_COLUMNS)
 
     def frames(self) -> dict:
         """Frame times ``t_us`` (µs, event clock), ``image`` (or None) and ``video`` path (or None)."""
@@ -494,10 +484,9 @@ class Session:
         return {"t_us": t, "image": cols["image"],
                 "video": str(self.path / video) if video else None}
 
-    def _table(self, name: str, fields) -> dict[str, np.ndarray]:
-        cols = self._read(name, fields)
-        return {k: (v if v is not None else np.zeros((0, *fields[k][1]), dtype=fields[k][0]))
-                for k, v in cols.items()}
+    def _table(self, name: str, columns) -> dict[str, np.ndarray]:
+        empty = empty_table(columns)
+        return {k: (v if v is not None else empty[k]) for k, v in self._read(name, columns).items()}
 
 
 def open_session(path) -> Session:

@@ -1,108 +1,17 @@
-"""Ball track container and the cutting of events into spin windows along a track.
+"""The cutting of events into spin windows along a ball track.
 
-These two types are the contract between detection (which produces a
-:class:`Track`) and spin estimation (which consumes :class:`SpinWindow`).
+Detection produces a :class:`capture.events.Track`; spin estimation consumes the
+:class:`SpinWindow` objects cut along it here.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, fields
+from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
-from capture.events import time_slice
-
-_DTYPES = {"t_us": np.int64, "cx": np.float64, "cy": np.float64, "r": np.float64,
-           "vx": np.float64, "vy": np.float64, "score": np.float32, "flight": np.int32}
-
-
-@dataclass
-class Track:
-    """Ball track, one row per track update, sorted by time.
-
-    Attributes
-    ----------
-    t_us : ndarray of int64, shape (N,)
-        Update time, µs on the event clock.
-    cx, cy, r : ndarray of float64, shape (N,)
-        Ball circle (centre and radius) in pixels at ``t_us``.
-    vx, vy : ndarray of float64, shape (N,)
-        Image velocity of the centre, px/s.
-    score : ndarray of float32, shape (N,)
-        Confidence of the update, 0..1.
-    flight : ndarray of int32, shape (N,)
-        Flight number (a new one each time the ball enters, is hit or bounces).
-    """
-
-    t_us: np.ndarray
-    cx: np.ndarray
-    cy: np.ndarray
-    r: np.ndarray
-    vx: np.ndarray
-    vy: np.ndarray
-    score: np.ndarray
-    flight: np.ndarray
-
-    def __post_init__(self):
-        for f in fields(self):
-            setattr(self, f.name, np.asarray(getattr(self, f.name), dtype=_DTYPES[f.name]).reshape(-1))
-        n = {len(getattr(self, f.name)) for f in fields(self)}
-        if len(n) > 1:
-            raise ValueError("track columns have different lengths")
-
-    def __len__(self) -> int:
-        return len(self.t_us)
-
-    @classmethod
-    def empty(cls) -> Track:
-        return cls(**{name: np.zeros(0, dt) for name, dt in _DTYPES.items()})
-
-    @classmethod
-    def from_columns(cls, columns: Mapping[str, np.ndarray]) -> Track:
-        """From a mapping with the session store's track columns."""
-        return cls(**{name: columns[name] for name in _DTYPES})
-
-    def columns(self) -> dict[str, np.ndarray]:
-        """Columns keyed by the session store's track field names."""
-        return {name: getattr(self, name) for name in _DTYPES}
-
-    def flight_ids(self) -> np.ndarray:
-        """Distinct flight numbers in order of appearance."""
-        _, first = np.unique(self.flight, return_index=True)
-        return self.flight[np.sort(first)]
-
-    @classmethod
-    def concat(cls, tracks) -> Track:
-        """Rows of ``tracks`` one after another (an empty track if there are none)."""
-        tracks = [t for t in tracks if len(t)]
-        if not tracks:
-            return cls.empty()
-        return cls(**{name: np.concatenate([getattr(t, name) for t in tracks]) for name in _DTYPES})
-
-    def select(self, mask) -> Track:
-        """Rows where ``mask`` is true (or the given indices)."""
-        return Track(**{name: getattr(self, name)[mask] for name in _DTYPES})
-
-    def at(self, t_us: float, flight: int | None = None) -> tuple[float, float, float, float, float]:
-        """Circle and velocity ``(cx, cy, r, vx, vy)`` at time ``t_us`` (µs).
-
-        Linear interpolation between the updates of one flight (the flight of the
-        nearest update unless ``flight`` is given); outside a flight's span the
-        centre is extrapolated with the end velocity.
-        """
-        if len(self) == 0:
-            raise ValueError("empty track")
-        if flight is None:
-            flight = int(self.flight[np.argmin(np.abs(self.t_us - t_us))])
-        rows = self.select(self.flight == flight)
-        t = rows.t_us.astype(np.float64)
-        if t_us <= t[0] or t_us >= t[-1] or len(rows) == 1:
-            i = 0 if t_us <= t[0] else len(rows) - 1
-            dt_s = (t_us - t[i]) * 1e-6
-            return (float(rows.cx[i] + rows.vx[i] * dt_s), float(rows.cy[i] + rows.vy[i] * dt_s),
-                    float(rows.r[i]), float(rows.vx[i]), float(rows.vy[i]))
-        return tuple(float(np.interp(t_us, t, getattr(rows, c))) for c in ("cx", "cy", "r", "vx", "vy"))
+from capture.events import Track, time_slice
 
 
 @dataclass(frozen=True)

@@ -33,12 +33,11 @@ import itertools
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, concatenate
+from capture.events import EVENT_DTYPE, Track, concatenate
 from detect.event_detector import CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle
 from detect.frame_detector import FrameDetector
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
-from detect.track import Track
 
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""

@@ -49,7 +49,7 @@ class Recording:
 
     def truth_track(self, visible_only: bool = True):
         """Ground-truth ball circle as a :class:`detect.track.Track` (score 1, flight = segment)."""
-        from detect.track import Track
+        from capture.events import Track
 
         tr = self.truth["track"]
         keep = np.asarray(tr["visible"], bool) if visible_only else np.ones(len(tr["t_us"]), bool)

@@ -1,13 +1,15 @@
 """Ball spin estimation by Contrast Maximization.
 
 ``estimate_spin(events, center, radius, ...)`` gives one :class:`SpinEstimate`;
-``estimate_windows(windows)`` one per track window; ``to_columns(estimates)`` the
-session store's spin columns.  ``method="fast"`` (default) or ``"paper"``.
-Importing it keeps freed heap memory for reuse, as ``capture`` does (``capture._malloc``):
-the objective's temporaries of a few MB are otherwise mapped afresh on every call.
+``estimate_windows(windows)`` one per track window (``capture.events.spin_table`` turns
+them into the session store's spin table).  ``method="fast"`` (default) or ``"paper"``.
+Importing it keeps freed heap memory for reuse (``capture._malloc``): the objective's
+temporaries of a few MB are otherwise mapped afresh on every call.
 """
 
-import capture  # noqa: F401  (allocator tuning)
-from spin.estimate import SpinEstimate, SpinInputError, estimate_spin, estimate_windows, to_columns
+from capture._malloc import keep_freed_memory
+from spin.estimate import SpinEstimate, SpinInputError, estimate_spin, estimate_windows
 
-__all__ = ["SpinEstimate", "SpinInputError", "estimate_spin", "estimate_windows", "to_columns"]
+keep_freed_memory()
+
+__all__ = ["SpinEstimate", "SpinInputError", "estimate_spin", "estimate_windows"]

@@ -296,17 +296,3 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
         out.append(est)
         previous = (win.flight, win.t_end_us, est)
     return out
-
-
-def to_columns(estimates) -> dict[str, np.ndarray]:
-    """Columns of the session store's ``SPIN_FIELDS`` from a list of estimates."""
-    est = list(estimates)
-    return {
-        "t_start_us": np.array([e.t_start_us for e in est], dtype=np.int64),
-        "t_end_us": np.array([e.t_end_us for e in est], dtype=np.int64),
-        "axis": np.array([e.axis for e in est], dtype=np.float64).reshape(-1, 3),
-        "omega_rad_s": np.array([e.omega_rad_s for e in est], dtype=np.float64),
-        "rps": np.array([e.rps for e in est], dtype=np.float64),
-        "velocity_px_s": np.array([e.velocity_px_s for e in est], dtype=np.float64).reshape(-1, 2),
-        "confidence": np.array([e.confidence for e in est], dtype=np.float32),
-    }

@@ -8,8 +8,8 @@ logic, the simulator-based tests check realism.
 import numpy as np
 import pytest
 
-from capture.events import empty_events, make_events
-from detect import BallTracker, Track, track_ball
+from capture.events import Track, empty_events, make_events
+from detect import BallTracker, track_ball
 from detect.event_detector import density_filter, find_candidates, fit_circle
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman

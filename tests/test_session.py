@@ -12,7 +12,7 @@ import pytest
 import zarr
 
 from capture import session as S
-from capture.events import EVENT_DTYPE, make_events, make_triggers, time_slice
+from capture.events import EVENT_DTYPE, TRACK_COLUMNS, make_events, make_triggers, time_slice
 
 
 def _events(n, seed=0, t_max=3_000_000, width=640, height=480):
@@ -215,7 +215,7 @@ def test_overwrite_replaces_the_store_and_keeps_other_files(tmp_path):
 
 
 def test_reader_of_a_closed_session_sees_later_updates(tmp_path):
-    track = {k: np.arange(5) for k in S.TRACK_FIELDS}
+    track = {k: np.arange(5) for k in TRACK_COLUMNS}
     with S.create_session(tmp_path / "s", width=10, height=10) as w:
         w.write_track(track)
     r = S.open_session(tmp_path / "s")

@@ -47,17 +47,18 @@ def test_bad_radius_and_method_and_dtype():
         spin.estimate_spin(ev[:0], (100, 80), 30)
 
 
-def test_to_columns_shapes_match_store_fields():
-    from capture.session import SPIN_FIELDS
+def test_spin_table_shapes_match_store_columns():
+    from capture.events import SPIN_COLUMNS, spin_table
     est = spin.SpinEstimate(axis=np.array([0.0, 0.0, 1.0]), omega_rad_s=6.28, rps=1.0,
                             velocity_px_s=np.array([1.0, 2.0]), t_start_us=0, t_end_us=10, n_events=5,
                             contrast=1.0, converged=True, confidence=0.5, method="fast")
-    cols = spin.to_columns([est, est])
-    assert set(cols) == set(SPIN_FIELDS)
-    for name, (dtype, shape) in SPIN_FIELDS.items():
+    cols = spin_table([est, est])
+    assert set(cols) == set(SPIN_COLUMNS)
+    for name, (dtype, shape) in SPIN_COLUMNS.items():
         assert cols[name].shape == (2, *shape)
         assert cols[name].dtype == np.dtype(dtype)
-    assert spin.to_columns([])["axis"].shape == (0, 3)
+    assert spin_table([])["axis"].shape == (0, 3)
+    assert spin_table(est)["rps"].tolist() == [1.0]
 
 
 def test_long_windows_are_thinned_evenly_for_the_fast_method():

@@ -57,7 +57,8 @@ def test_paper_recovers_known_spin(ball):
 
 
 def test_estimate_windows_along_a_track(ball):
-    from detect.track import Track, spin_windows
+    from capture.events import Track, spin_table
+    from detect.track import spin_windows
 
     events, truth = ball
     t0, t1 = int(events["t"][0]), int(events["t"][-1])
@@ -72,7 +73,7 @@ def test_estimate_windows_along_a_track(ball):
         axis_deg, omega_rel = _errors(est, truth)
         assert axis_deg < 3.0 and omega_rel < 0.03
         assert win.t_start_us <= est.t_start_us < est.t_end_us <= win.t_end_us
-    cols = spin.to_columns(estimates)
+    cols = spin_table(estimates)
     assert np.allclose(cols["rps"], [e.rps for e in estimates]) and cols["axis"].shape == (2, 3)
 
 

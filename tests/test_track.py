@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from capture.events import make_events
-from detect.track import Track, spin_windows
+from capture.events import Track, make_events
+from detect.track import spin_windows
 
 
 def _track():

@@ -1,0 +1,84 @@
+"""The one command-line pattern shared by every module.
+
+Each command module (``capture.run``, ``capture.replay``, ``capture.review``, ``capture.ingest``,
+``capture.raw``, ``capture.evk``, ``capture.gopro``, ``sim.dataset``) has
+
+- ``build_parser() -> argparse.ArgumentParser`` whose ``prog`` is ``python -m <module>``, using
+  the ``type=`` helpers below, so that an option is spelled and parsed the same everywhere
+  (``--roi X,Y,WIDTH,HEIGHT``, ``--bias NAME=VALUE``, ``--quiet``);
+- ``main(argv=None) -> int`` that parses, then runs its body through :func:`run_command`:
+  an error is printed as one line ``<prog>: error: <reason>`` and gives exit code 1 (a usage error
+  is argparse's, exit code 2), Ctrl-C gives 130, never a traceback.
+
+The ``courtside`` console script (:mod:`capture.cli`) dispatches its subcommands to these ``main``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+EXIT_ERROR = 1
+EXIT_INTERRUPTED = 130
+
+
+def box(text: str) -> tuple[int, int, int, int]:
+    """argparse type: four comma-separated integers, e.g. ``--roi X,Y,WIDTH,HEIGHT`` (px)."""
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        raise argparse.ArgumentTypeError(f"expected four comma-separated integers, got {text!r}")
+    return values
+
+
+def name_int(text: str) -> tuple[str, int]:
+    """argparse type: ``NAME=VALUE`` with an integer value (``--bias bias_fo=10``); use with
+    ``action="append"`` and turn the pairs into a dict."""
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        return name, int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not an integer") from None
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer > 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
+    return value
+
+
+def run_command(prog: str, body: Callable[[], int | None]) -> int:
+    """Run a command's body; return its exit code (None: 0).
+
+    Any exception becomes one line on stderr, ``<prog>: error: <message>`` (the exception's type
+    is named when it is not one of ours or an OS / value error), and exit code 1; Ctrl-C gives 130.
+    """
+    try:
+        code = body()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # the command line's promise: one line, never a traceback
+        print(f"{prog}: error: {describe(exc)}", file=sys.stderr)
+        return EXIT_ERROR
+    return 0 if code is None else int(code)
+
+
+def describe(exc: BaseException) -> str:
+    """One line for an exception: its message, prefixed with its type unless that is one of this
+    project's errors (their messages are written for the user) or an OS / value error."""
+    message = " ".join(str(exc).split()) or type(exc).__name__
+    ours = type(exc).__module__.split(".")[0] in {"capture", "detect", "spin", "calib", "sim"}
+    if ours or isinstance(exc, (OSError, ValueError)):
+        return message
+    return f"{type(exc).__name__}: {message}"
