@@ -7,8 +7,9 @@ Each command module (``capture.run``, ``capture.replay``, ``capture.review``, ``
   the ``type=`` helpers below, so that an option is spelled and parsed the same everywhere
   (``--roi X,Y,WIDTH,HEIGHT``, ``--bias NAME=VALUE``, ``--quiet``);
 - ``main(argv=None) -> int`` that parses, then runs its body through :func:`run_command`:
-  an error is printed as one line ``<prog>: error: <reason>`` and gives exit code 1 (a usage error
-  is argparse's, exit code 2), Ctrl-C gives 130, never a traceback.
+  an error is printed as one line ``<module>: error: <reason>`` (e.g. ``capture.replay: error: ...``)
+  and gives exit code 1 (a usage error is argparse's, exit code 2), Ctrl-C gives 130, never a
+  traceback.
 
 The ``courtside`` console script (:mod:`capture.cli`) dispatches its subcommands to these ``main``.
 """
@@ -60,9 +61,11 @@ def positive_int(text: str) -> int:
 def run_command(prog: str, body: Callable[[], int | None]) -> int:
     """Run a command's body; return its exit code (None: 0).
 
-    Any exception becomes one line on stderr, ``<prog>: error: <message>`` (the exception's type
-    is named when it is not one of ours or an OS / value error), and exit code 1; Ctrl-C gives 130.
+    Any exception becomes one line on stderr, ``<module>: error: <message>`` (``prog`` without a
+    leading ``python -m``; the exception's type is named when it is not one of ours or an OS /
+    value error), and exit code 1; Ctrl-C gives 130.
     """
+    prog = prog.removeprefix("python -m ")
     try:
         code = body()
     except KeyboardInterrupt:
