@@ -27,7 +27,7 @@ import numpy as np
 
 import sim
 from capture.events import concatenate
-from capture.replay import ReplayOptions, replay, spin_part, track_session
+from capture.pipeline.replay import ReplayOptions, replay, spin_part, track_session
 from capture.session import create_session, open_session
 from sim.esim import noise_events
 

@@ -58,6 +58,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def print_fields(d: dict) -> None:
+    """Print ``key: value`` lines (nested dicts indented; floats rounded; None left out)."""
+    for key, value in d.items():
+        if isinstance(value, dict):
+            print(f"{key}:")
+            for k, v in value.items():
+                print(f"  {k}: {v}")
+        elif value is not None:
+            print(f"{key}: {round(value) if isinstance(value, float) else value}")
+
+
 def run_command(prog: str, body: Callable[[], int | None]) -> int:
     """Run a command's body; return its exit code (None: 0).
 

@@ -1,425 +1,30 @@
-"""Offline replay: run detection and spin over a stored session (or a bare RAW file).
+"""Offline replay: ``python -m capture.replay SESSION_OR_RAW [--mp4 VIDEO] [--rrd OUT.rrd]``.
 
-``python -m capture.replay SESSION_OR_RAW [--mp4 VIDEO] --rrd OUT.rrd``
-
-The work is split into independent units with plain inputs and outputs, so that
-a batch of sessions can later run on a distributed engine unchanged:
-
-- :func:`track_session` — one per session: session path in, the whole track out, and each
-  :class:`SpinPart` (some consecutive spin windows of a flight, each with its ball events
-  and track prior) handed out as soon as tracking has passed it;
-- :func:`spin_part` — one per part: plain data in, spin columns out; a flight's parts give
-  the same windows as the whole flight (:func:`spin_flight`), so splitting only spreads
-  the work;
-- :func:`replay` — drives both for one session (spin parts in worker processes while
-  tracking goes on) and writes the results.
+Runs detection and spin again over a stored session (:func:`capture.pipeline.replay.replay`),
+or first makes a session of a bare RAW file and its video (:func:`capture.ingest.session_from_raw`).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
-from threadpoolctl import threadpool_limits
-from tqdm import tqdm
 
-import spin
-from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
-from capture.frames import attach_video, iter_session_frames
-from capture.workers import SharedWork
-from capture.session import SessionError, open_session, update_session
-from detect import BallTracker
-from detect.track import spin_windows
+from capture.cliargs import box, positive_int, run_command
+from capture.ingest import session_from_raw
+from capture.pipeline.replay import ReplayOptions, replay
 
-BATCH_EVENTS = 1 << 20
-"""Events read from the store per detection step (bounds memory)."""
+PROG = "python -m capture.replay"
 
 
-@dataclass
-class ReplayOptions:
-    """Settings of the offline analysis.
-
-    Attributes
-    ----------
-    window_us : int
-        Shortest spin window, µs.
-    max_window_us : int
-        Longest spin window, µs: where the ball fires few events, a window is
-        lengthened up to this until it holds ``min_events``.
-    step_us : int
-        Time between the starts of two spin windows, µs (spin changes slowly in flight:
-        50 estimates per second of flight by default).
-    min_events : int
-        Fewest ball events for a spin window.
-    max_events : int
-        Most ball events used per spin window.
-    method : str
-        Spin method, ``"fast"`` or ``"paper"``.
-    workers : int
-        Processes for the spin units, this one included (1: all in this process); the
-        others start spin work while this one is still tracking (sessions shorter than
-        ``WORKERS_MIN_SPAN_S`` use this process alone).
-    windows_per_unit : int
-        Spin windows per unit of work when flights are split across workers.
-    tracker : dict
-        Options of :class:`detect.BallTracker`.
-    """
-
-    window_us: int = 2000
-    max_window_us: int = 20000
-    step_us: int = 20000
-    min_events: int = 1500
-    max_events: int = 30000
-    method: str = "fast"
-    workers: int = 2
-    windows_per_unit: int = 4
-    tracker: dict = field(default_factory=dict)
-
-
-@dataclass
-class SpinPart:
-    """Spin work for consecutive windows of one ball flight, as plain data.
-
-    Attributes
-    ----------
-    flight : int
-        Flight number.
-    starts_us : ndarray of int64
-        Start times of the windows, µs (on the flight's grid: every ``step_us`` from its
-        first track row); those with too few ball events have no window.
-    windows : list of detect.track.SpinWindow
-        The windows, each with its ball events and the track's prior: exactly those that
-        :func:`detect.track.spin_windows` cuts from all events with the whole track.
-    """
-
-    flight: int
-    starts_us: np.ndarray
-    windows: list
-
-
-REACH_MARGIN = (1.25, 8.0)
-"""Events within ``1.25 r + 8 px`` of the ball (extrapolated from the last track row) are
-kept for spin: a wide superset of the ``r + 1 px`` circle of :func:`detect.track.spin_windows`,
-which covers the difference between the causal and the smoothed track."""
-
-
-def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, longest_us: int,
-               group_us: int = 16000) -> np.ndarray:
-    """Indices of events ``(t_us, x, y)`` (time-sorted, contiguous) that a spin window of
-    ``rows``' flight may use.
-
-    An event counts when it lies within :data:`REACH_MARGIN` of the circle of the flight's
-    last row at or before it, moved along that row's velocity, and is at most
-    ``longest_us`` after the flight's last row. Rows are taken in groups spanning about
-    ``group_us``: a box around the ball's path over the group rejects most events with
-    integer comparisons, the few left are tested exactly.
-    """
-    t_row = rows.t_us
-    ends = np.append(t_row[1:], t_row[-1] + longest_us)  # a window may start in a gap between rows
-    reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
-    span_s = (ends - t_row) * 1e-6
-    ex, ey = rows.cx + rows.vx * span_s, rows.cy + rows.vy * span_s  # centres at the rows' ends
-    x_lo = np.floor(np.minimum(rows.cx, ex) - reach)
-    x_hi = np.ceil(np.maximum(rows.cx, ex) + reach)
-    y_lo = np.floor(np.minimum(rows.cy, ey) - reach)
-    y_hi = np.ceil(np.maximum(rows.cy, ey) + reach)
-    # group boundaries: a new group every group_us of row time
-    starts = np.flatnonzero(np.diff((t_row - t_row[0]) // group_us, prepend=-1))
-    keep = []
-    for g0, g1 in zip(starts.tolist(), [*starts[1:].tolist(), len(rows)]):
-        lo, hi = np.searchsorted(t_us, [t_row[g0], ends[g1 - 1]], side="left").tolist()
-        if hi <= lo:
-            continue
-        xs, ys = x[lo:hi], y[lo:hi]
-        box = np.flatnonzero((xs >= max(0, int(x_lo[g0:g1].min()))) & (xs <= min(65535, int(x_hi[g0:g1].max())))
-                             & (ys >= max(0, int(y_lo[g0:g1].min()))) & (ys <= min(65535, int(y_hi[g0:g1].max()))))
-        tb = t_us[lo:hi].take(box)
-        i = g0 + np.searchsorted(t_row[g0:g1], tb, side="right") - 1
-        dt_s = (tb - t_row[i]) * 1e-6
-        dx = xs.take(box) - (rows.cx[i] + rows.vx[i] * dt_s)
-        dy = ys.take(box) - (rows.cy[i] + rows.vy[i] * dt_s)
-        ok = (dx * dx + dy * dy <= reach[i] * reach[i]) & (tb < ends[i])
-        keep.append(lo + box[ok])
-    return np.concatenate(keep) if keep else np.zeros(0, np.int64)
-
-
-@dataclass
-class _OpenFlight:
-    """What :func:`track_session` keeps of a flight until all its spin parts are out."""
-
-    causal: Track  # rows as tracked (for keeping the events near the ball)
-    final: Track  # final rows from the one bracketing ``next_start_us`` on
-    next_start_us: int  # first window start not handed out yet
-    near: list  # events near the ball from ``next_start_us`` on
-    ended: bool = False
-
-
-def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before_us, on_part) -> None:
-    """Hand out the flight's parts whose windows have final track rows and all their events
-    (``assigned_before_us``: events before it are assigned; None: all)."""
-    longest_us = max(options.window_us, options.max_window_us)
-    while len(flight.final):
-        limit = int(flight.final.t_us[-1])  # windows start on or before the last final row
-        starts = np.arange(flight.next_start_us, limit + 1, options.step_us, dtype=np.int64)
-        starts = starts[:options.windows_per_unit]
-        if not len(starts) or (len(starts) < options.windows_per_unit and not flight.ended):
-            return
-        if assigned_before_us is not None and starts[-1] + longest_us > assigned_before_us:
-            return
-        end_us = int(starts[-1]) + longest_us
-        pieces = []
-        for chunk in flight.near:  # time-ordered chunks: join only the part's span
-            t = chunk["t"]
-            if t[0] >= end_us:
-                break
-            lo, hi = np.searchsorted(t, [starts[0], end_us], side="left")
-            pieces.append(chunk[lo:hi])
-        rows = flight.final
-        i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
-        i1 = int(np.searchsorted(rows.t_us, starts[-1], side="right")) + 1  # rows may share a time
-        fid = int(rows.flight[0])
-        windows = spin_windows(concatenate(pieces), rows.select(slice(i0, i1)), window_us=options.window_us,
-                               min_events=options.min_events, max_events=options.max_events,
-                               max_window_us=options.max_window_us, starts_us={fid: starts})
-        on_part(SpinPart(fid, starts, list(windows)))
-        flight.next_start_us = int(starts[-1]) + options.step_us
-        near = []
-        for chunk in flight.near:
-            if chunk["t"][-1] >= flight.next_start_us:
-                near.append(chunk[int(np.searchsorted(chunk["t"], flight.next_start_us, side="left")):])
-        flight.near = near
-        flight.final = rows.select(slice(max(0, int(np.searchsorted(rows.t_us, flight.next_start_us,
-                                                                     side="right")) - 1), None))
-
-
-def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
-                  on_part=None) -> Track:
-    """Detect and track the ball over a session, streaming its events in batches.
-
-    Parameters
-    ----------
-    session_path : path
-        Session directory.
-    on_part : callable, optional
-        Called with each :class:`SpinPart` as soon as its windows have final track rows and
-        all their events have been read, while tracking goes on; every window of every
-        flight is in exactly one part, in order within a flight.
-
-    Returns
-    -------
-    Track
-        The whole track (as ``BallTracker.finish``).
-
-    Memory stays bounded: of the events read, only those near the ball are kept, and only
-    until their windows are handed out.
-    """
-    options = options or ReplayOptions()
-    longest_us = max(options.window_us, options.max_window_us)
-    s = open_session(session_path)
-    tracker = BallTracker(s.width, s.height, **options.tracker)
-    frames = iter_session_frames(s, s.width, s.height)
-    pending = next(frames, None)
-    flights: dict[int, _OpenFlight] = {}
-    unread: list[np.ndarray] = []  # events not yet assigned to flights
-
-    newest = -1  # the highest flight number seen
-
-    def take_rows(causal: Track, final: Track):
-        """Add the tracker's new causal rows (for keeping events near the ball) and final rows."""
-        nonlocal newest
-        for fid in np.unique(causal.flight).tolist():
-            rows = causal.select(causal.flight == fid)
-            if fid in flights:
-                flights[fid].causal = Track.concat([flights[fid].causal, rows])
-            elif fid > newest:
-                flights[fid] = _OpenFlight(rows, Track.empty(), int(rows.t_us[0]), [])
-            newest = max(newest, fid)
-        for fid in np.unique(final.flight).tolist():
-            flights[fid].final = Track.concat([flights[fid].final, final.select(final.flight == fid)])
-        for fid, fl in flights.items():
-            fl.ended = fid != tracker.active_flight
-
-    def assign(before_us):
-        """Keep, per flight, the events near its ball among those before ``before_us`` (all: None)."""
-        while unread:
-            ev = unread[0]
-            k = len(ev) if before_us is None else int(np.searchsorted(ev["t"], before_us, side="left"))
-            if k == 0:
-                break
-            columns = [np.ascontiguousarray(ev[c][:k]) for c in ("t", "x", "y")]
-            for fl in flights.values():
-                idx = _near_ball(*columns, fl.causal, longest_us)
-                if len(idx):
-                    fl.near.append(np.take(ev, idx))  # 10x faster than ev[idx] on records
-            if k < len(ev):
-                unread[0] = ev[k:]
-                break
-            unread.pop(0)
-
-    def hand_out(assigned_before_us):
-        for fid in list(flights):
-            fl = flights[fid]
-            if on_part is None:  # tracking only: nothing to keep
-                if fl.ended:
-                    del flights[fid]
-                continue
-            _hand_out_parts(fl, options, assigned_before_us, on_part)
-            done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
-            if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
-                del flights[fid]
-
-    bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
-               leave=False)
-    for batch in s.iter_events(BATCH_EVENTS, prefetch=True):
-        if not len(batch):
-            continue
-        while pending is not None and pending[0] <= batch["t"][-1]:
-            tracker.update_frame(pending[1], pending[0])
-            pending = next(frames, None)
-        take_rows(tracker.update(batch), tracker.take_final())
-        if on_part is not None:
-            unread.append(batch)
-        final_before_us = tracker.rows_final_before_us
-        if final_before_us is not None:
-            assign(final_before_us)
-            hand_out(final_before_us)
-        bar.update(len(batch))
-    bar.close()
-    track = tracker.finish()
-    final = tracker.take_final()
-    for fid, fl in flights.items():  # the rows of the last updates: those of the final track
-        fl.causal = track.select(track.flight == fid)
-    take_rows(final.select(final.flight > newest), final)
-    if unread:
-        assign(None)
-    hand_out(None)
-    return track
-
-
-def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None,
-                starts_us=None) -> dict[str, np.ndarray]:
-    """Spin estimates of one ball flight (or of some of its windows).
-
-    Parameters
-    ----------
-    events : ndarray of EVENT_DTYPE
-        Events covering the flight's time span (or the windows' span); events far from
-        the ball may be left out.
-    track : Track
-        The flight's track rows.
-    starts_us : array_like of int, optional
-        Start times of the windows to estimate, µs (default: all of the flight's).
-
-    Returns
-    -------
-    dict
-        Spin columns (``capture.events.SPIN_COLUMNS``), one row per spin window.
-    """
-    options = options or ReplayOptions()
-    if starts_us is not None:
-        starts_us = {int(track.flight[0]): np.asarray(starts_us, np.int64)}
-    windows = spin_windows(events, track, window_us=options.window_us, step_us=options.step_us,
-                           min_events=options.min_events, max_events=options.max_events,
-                           max_window_us=options.max_window_us, starts_us=starts_us)
-    return spin_table(spin.estimate_windows(windows, method=options.method))
-
-
-def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
-    """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out).
-    Its windows are estimated in order, each warm-started from the one before (see
-    ``spin.estimate_windows``)."""
-    return spin_table(spin.estimate_windows(part.windows, method=options.method))
-
-
-def _spin_unit(args) -> dict[str, np.ndarray]:
-    return spin_part(*args)
-
-
-WORKERS_MIN_SPAN_S = 1.0
-"""Shorter sessions are analysed in this process alone: worker processes take about a second of
-CPU to start, more than the spin work of such a session."""
-
-WORKER_PRELOAD = ["capture.session", "detect", "spin"]
-"""Imported once by the worker processes' forkserver (most of their start-up time); not this module
-itself, which may be the ``__main__`` of ``python -m capture.replay``."""
-
-
-def _one_thread_per_worker() -> None:
-    """Worker processes already run in parallel: BLAS and OpenCV thread pools inside them only
-    oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this)."""
-    cv2.setNumThreads(1)
-    threadpool_limits(1)
-
-
-@dataclass
-class ReplayResult:
-    """What a replay found: the track, the spin columns and where the review file went."""
-
-    track: Track
-    spin: dict[str, np.ndarray]
-    rrd_path: Path | None
-
-
-def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
-           progress: bool = True) -> ReplayResult:
-    """Run detection and spin over a stored session, store the results, write the ``.rrd``.
-
-    Parameters
-    ----------
-    session_path : path
-        Session directory (see ``capture.session``).
-    rrd_path : path, optional
-        Where to write the Rerun recording (none if ``None``).
-    """
-    options = options or ReplayOptions()
-    for name in ("window_us", "max_window_us", "step_us", "min_events", "max_events", "workers",
-                 "windows_per_unit"):
-        if getattr(options, name) <= 0:
-            raise ValueError(f"{name} must be positive, got {getattr(options, name)}")
-    if rrd_path is not None and Path(rrd_path).is_dir():
-        raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
-    # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
-    # once tracking is done, this process joins in
-    workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
-    with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
-                    initializer=_one_thread_per_worker) as work:
-        track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
-        spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
-    writer = update_session(session_path)
-    writer.write_track(track.columns())
-    writer.write_spin(spin_columns)
-    writer.close()
-    if rrd_path is not None:
-        from capture.review import write_rrd
-
-        write_rrd(session_path, rrd_path, progress=progress)
-    return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)
-
-
-def session_from_raw(raw_path, session_dir, mp4_path=None, progress: bool = True, led_roi=None,
-                     exposure_s: float | None = None) -> Path:
-    """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session."""
-    from capture.raw.cli import convert
-
-    convert(raw_path, session_dir, progress=progress)
-    if mp4_path is not None:
-        print(attach_video(session_dir, mp4_path, led_roi=led_roi, exposure_s=exposure_s))
-    return Path(session_dir)
-
-
-def main(argv=None) -> int:
-    from capture.review import ReviewError
-    from capture.run import RecorderError, parse_box
-
-    ap = argparse.ArgumentParser(prog="python -m capture.replay",
-                                 description="Run detection and spin over a stored session or a RAW file.")
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description="Run detection and spin over a stored session or a RAW file.")
     ap.add_argument("source", help="session directory, or a Prophesee RAW file")
     ap.add_argument("--mp4", help="GoPro video to attach when SOURCE is a RAW file")
-    ap.add_argument("--led-roi", help="sync-box LED region X0,Y0,X1,Y1 in video pixels (default: automatic)")
+    ap.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
+                    help="sync-box LED region in video pixels (default: automatic)")
     ap.add_argument("--exposure", type=float, metavar="S",
                     help="video shutter time in seconds when locked (default: estimated)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
@@ -430,27 +35,33 @@ def main(argv=None) -> int:
     ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
-    ap.add_argument("--workers", type=int, default=ReplayOptions.workers,
+    ap.add_argument("--workers", type=positive_int, default=ReplayOptions.workers,
                     help="processes in all, this one included (spin runs in the others while this one tracks)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(PROG, lambda: _run(args))
+
+
+def _run(args) -> None:
     progress = not args.quiet
-    try:
-        src = Path(args.source)
-        if not src.exists():
-            raise FileNotFoundError(f"{src}: no such file or directory")
-        if src.is_file():
-            out = Path(args.out) if args.out else src.with_name(src.stem + "_session")
-            led_roi = parse_box(args.led_roi, "--led-roi", "X0,Y0,X1,Y1") if args.led_roi else None
-            session_path = session_from_raw(src, out, args.mp4, progress, led_roi, args.exposure)
-        else:
-            session_path = src
-        opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
-                             step_us=args.step_us, method=args.method, workers=args.workers)
-        result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
-    except (SessionError, RecorderError, ReviewError, OSError, ValueError) as exc:
-        print(f"replay: error: {exc}", file=sys.stderr)
-        return 1
+    src = Path(args.source)
+    if not src.exists():
+        raise FileNotFoundError(f"{src}: no such file or directory")
+    if src.is_file():
+        out = Path(args.out) if args.out else src.with_name(src.stem + "_session")
+        session_path, note = session_from_raw(src, out, args.mp4, progress=progress, led_roi=args.led_roi,
+                                              exposure_s=args.exposure)
+        if note:
+            print(note)
+    else:
+        session_path = src
+    opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
+                         step_us=args.step_us, method=args.method, workers=args.workers)
+    result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     n_flights = len(result.track.flight_ids())
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "
           f"{len(result.spin['rps'])} spin estimates"
@@ -459,7 +70,6 @@ def main(argv=None) -> int:
         ok = result.spin["confidence"] >= 0.5
         if ok.any():
             print(f"median spin {np.median(result.spin['rps'][ok]):.1f} rps over {ok.sum()} confident windows")
-    return 0
 
 
 if __name__ == "__main__":

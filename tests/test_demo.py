@@ -1,23 +1,33 @@
 """The built-in demo end to end (small size): simulate, record through the fakes, analyse, review."""
 
+import contextlib
+import io
+
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from capture.demo import run_demo, spin_summary
+import capture.pipeline.demo as demo_inputs
+from capture.pipeline.demo import spin_summary
+from capture.run import main as run_main
 from capture.session import open_session
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
+    """``python -m capture.run --demo`` on a shortened rally: exit code, session, printed output."""
     out = tmp_path_factory.mktemp("demo") / "session"
-    rc = run_demo(out, quiet=True, speed="max", duration_s=0.25)
-    return rc, out
+    stdout = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout):
+        mp.setattr(demo_inputs, "DEMO_DURATION_S", 0.25)
+        rc = run_main(["--demo", "--out", str(out), "--viewer", "none", "--speed", "max", "--quiet"])
+    return rc, out, stdout.getvalue()
 
 
 def test_demo_records_analyses_and_reviews(demo):
-    rc, out = demo
+    rc, out, printed = demo
     assert rc == 0
+    assert "True spin:" in printed and "Error:" in printed and "review.rrd" in printed
     s = open_session(out)
     assert s.attrs["closed"] and s.n_events > 100_000
     assert len(s.triggers()) >= 2  # the sync box's edges reached the trigger input
@@ -49,7 +59,7 @@ def test_demo_records_analyses_and_reviews(demo):
 def test_replay_of_the_bare_raw_and_video_reproduces_the_session(demo, tmp_path):
     from capture.replay import main as replay_main
 
-    _, out = demo
+    _, out, _ = demo
     s = open_session(out)
     video = next((out / "gopro").glob("*.MP4"))
     new = tmp_path / "from_raw"

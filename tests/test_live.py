@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import sim
-from capture.live import LiveAnalysis
+from capture.pipeline.live import LiveAnalysis
 
 
 @pytest.fixture(scope="module")

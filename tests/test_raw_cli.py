@@ -1,4 +1,4 @@
-"""python -m capture.raw info / convert on real files, into a real session store."""
+"""python -m capture.raw info and python -m capture.ingest raw on real files, into a real session store."""
 
 import subprocess
 import sys
@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 import capture.raw as raw
+from capture.ingest import main as ingest_main
 from capture.raw.cli import main
 from capture.session import Session
 
@@ -23,9 +24,9 @@ def test_info_prints_header_counts_and_rate(shared_raw_dir, capsys):
     assert "geometry: 1280x720" in out
 
 
-def test_convert_writes_session_with_events_triggers_and_header(shared_raw_dir, tmp_path):
+def test_ingest_raw_writes_session_with_events_triggers_and_header(shared_raw_dir, tmp_path):
     session_dir = tmp_path / "s1"
-    assert main(["convert", str(shared_raw_dir / NAME), str(session_dir), "--no-progress"]) == 0
+    assert ingest_main(["raw", str(shared_raw_dir / NAME), str(session_dir), "--quiet"]) == 0
     s = Session(session_dir)
     r = raw.read(shared_raw_dir / NAME)
     assert (s.width, s.height) == (1280, 720)
@@ -37,16 +38,18 @@ def test_convert_writes_session_with_events_triggers_and_header(shared_raw_dir, 
     assert s.attrs["raw_source"]["damage"] is None
 
 
-def test_convert_refuses_existing_session_and_bad_file(shared_raw_dir, tmp_path, capsys):
+def test_ingest_raw_refuses_existing_session_and_bad_file(shared_raw_dir, tmp_path, capsys):
     session_dir = tmp_path / "s2"
     session_dir.mkdir()
     (session_dir / "keep.txt").write_text("x")
-    assert main(["convert", str(shared_raw_dir / NAME), str(session_dir), "--no-progress"]) == 2
-    assert "already exists" in capsys.readouterr().err
+    assert ingest_main(["raw", str(shared_raw_dir / NAME), str(session_dir), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already exists" in err[0]
     empty = tmp_path / "empty.raw"
     empty.write_bytes(b"")
-    assert main(["info", str(empty)]) == 2
-    assert "empty.raw: empty file" in capsys.readouterr().err
+    assert main(["info", str(empty)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "empty.raw: empty file" in err[0]
 
 
 def test_module_entry_point_runs(shared_raw_dir):

@@ -1,15 +1,11 @@
-"""Offline replay's units: flights streamed out of a stored session, and work shared with worker processes."""
-
-import os
-import time
+"""Offline replay's units: flights streamed out of a stored session into spin parts."""
 
 import numpy as np
 import pytest
 
-import capture.replay as replay_mod
-from capture.replay import ReplayOptions, track_session
+import capture.pipeline.replay as replay_mod
+from capture.pipeline.replay import ReplayOptions, track_session
 from capture.session import Session, create_session
-from capture.workers import SharedWork
 from detect import track_ball
 from detect.track import spin_windows, window_starts_us
 from sim.esim import merge
@@ -121,52 +117,3 @@ def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path
         assert mine == full
         n += len(full)
     assert n >= 10
-
-
-def _slow_square(x):
-    time.sleep(0.05)
-    if x < 0:
-        raise ValueError(f"negative unit {x}")
-    return x * x, os.getpid()
-
-
-def test_shared_work_returns_every_result_in_order_from_both_processes():
-    with SharedWork(_slow_square, 2) as work:
-        for i in range(60):
-            work.add(i)
-        out = work.results()
-    assert [r for r, _ in out] == [i * i for i in range(60)]
-    pids = {p for _, p in out}
-    assert os.getpid() in pids and len(pids) == 2  # the caller and one worker process shared it
-
-
-def test_shared_work_feeds_the_workers_while_the_caller_is_busy_and_bounds_the_queue():
-    with SharedWork(_slow_square, 2) as work:
-        for i in range(8):
-            work.add(i)
-        time.sleep(3.0)  # the caller's own work (tracking): the worker goes on meanwhile
-        done_early = sum(f.done() for f in work._results.values() if hasattr(f, "done"))
-        out = work.results()
-    assert done_early >= 4 and [r for r, _ in out] == [i * i for i in range(8)]
-    with SharedWork(_slow_square, 2, max_queued=2) as work:
-        for i in range(12):
-            work.add(i)
-            assert len(work._queue) <= 2  # the caller takes on work rather than queueing it all
-        out = work.results()
-    assert [r for r, _ in out] == [i * i for i in range(12)]
-    assert os.getpid() in {p for _, p in out}
-
-
-def test_shared_work_in_one_process_and_errors():
-    with SharedWork(_slow_square, 1) as work:
-        for i in range(3):
-            work.add(i)
-        assert [r for r, _ in work.results()] == [0, 1, 4]
-        assert {p for _, p in work.results()} == {os.getpid()}
-    with SharedWork(_slow_square, 2) as work:
-        work.add(2)
-        work.add(-1)
-        with pytest.raises(ValueError, match="negative unit -1"):
-            work.results()
-    with pytest.raises(ValueError, match="workers must be positive"):
-        SharedWork(_slow_square, 0)

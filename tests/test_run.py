@@ -87,13 +87,14 @@ def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
 def test_camera_unplugged_mid_recording_finalises_everything(shared_raw_dir, tmp_path, capsys):
     from capture.evk.fake import FakeEVK
     from capture.gopro import FakeGoPro, GoPro, write_test_video
-    from capture.run import RecordSettings, print_summary, record_session
+    from capture.pipeline.record import RecordSettings, record_session
+    from capture.run import print_summary
 
     src = shared_raw_dir / TRIGGER_FILE
     mp4 = write_test_video(tmp_path / "clip.mp4", [np.full((48, 64), v, np.uint8) for v in range(0, 200, 20)], 30)
     with FakeGoPro(mp4) as fake:
         settings = RecordSettings(out=tmp_path / "s", backend=FakeEVK(src, disconnect_after_bytes=300_000),
-                                  gopro=GoPro(host=fake.host, port=fake.port), analyse=False, quiet=True)
+                                  gopro=GoPro(host=fake.host, port=fake.port), quiet=True)
         result = record_session(settings)
         assert not fake.encoding  # the GoPro was stopped
     assert result.error and "Disconnected" in result.error
@@ -114,7 +115,7 @@ def test_replay_rejects_bad_options_on_one_line(shared_raw_dir, tmp_path, capsys
         capsys.readouterr()
         assert replay_main([str(out), "--quiet", *args]) == 1
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("replay: error:")
+        assert len(err) == 1 and err[0].startswith("capture.replay: error:")
 
 
 def test_ctrl_c_stops_cleanly(shared_raw_dir, tmp_path):

@@ -1,4 +1,4 @@
-"""``python -m capture.raw info FILE`` / ``python -m capture.raw convert FILE SESSION_DIR``."""
+"""``python -m capture.raw info FILE``."""
 
 from capture.raw.cli import main
 

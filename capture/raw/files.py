@@ -1,13 +1,16 @@
-"""Whole-file API: :func:`read` a RAW file into arrays, :func:`write` arrays as a RAW file."""
+"""Whole-file API: :func:`read` a RAW file into arrays, :func:`write` arrays as a RAW file,
+:func:`scan` / :func:`info` a file's counts and time range without keeping its events."""
 
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void, concatenate
 from capture.raw import evt2, evt3
@@ -179,3 +182,46 @@ def write(path, events: np.ndarray, triggers: np.ndarray | None = None, *, forma
         f.write(data)
     os.replace(tmp, path)
     return len(data)
+
+
+def scan(reader: RawReader, on_batch=None, progress: bool = False) -> dict:
+    """Decode every batch of ``reader``; ``on_batch(events, triggers)`` sees each one.
+
+    Returns
+    -------
+    dict
+        ``events``, ``events_on``, ``triggers`` (counts), ``t_first_us``, ``t_last_us``,
+        ``duration_us`` (µs; None / 0 without events) and ``rate_ev_s`` (mean event rate, ev/s).
+    """
+    n_ev = n_tr = n_on = 0
+    t_first = t_last = None
+    bar = tqdm(total=reader.size_bytes, unit="B", unit_scale=True, disable=not progress,
+               desc="decoding", file=sys.stderr)
+    done = 0
+    for events, triggers in reader:
+        if len(events):
+            n_ev += len(events)
+            n_on += int(np.count_nonzero(events["p"]))
+            t_first = int(events["t"][0]) if t_first is None else t_first
+            t_last = int(events["t"][-1])
+        n_tr += len(triggers)
+        if on_batch is not None:
+            on_batch(events, triggers)
+        now = reader.decoder.bytes_in + reader.header_size
+        bar.update(now - done)
+        done = now
+    bar.close()
+    duration_us = (t_last - t_first) if t_first is not None else 0
+    return {"events": n_ev, "events_on": n_on, "triggers": n_tr, "t_first_us": t_first, "t_last_us": t_last,
+            "duration_us": duration_us,
+            "rate_ev_s": n_ev / (duration_us * 1e-6) if duration_us > 0 else None}
+
+
+def info(path, *, chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> dict:
+    """Header, format, geometry (px), counts, duration (µs) and mean event rate (ev/s) of a RAW file."""
+    reader = RawReader(path, chunk_bytes=chunk_bytes)
+    summary = scan(reader)
+    return {"file": str(path), "format": reader.format, "width": reader.width, "height": reader.height,
+            "header_style": reader.header["style"], "header": reader.header["fields"],
+            "header_bytes": reader.header_size, "size_bytes": reader.size_bytes, **summary,
+            "damage": reader.damage_message(), "stats": reader.decoder.stats}

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import spin
 from capture.events import Track, concatenate, time_slice
 from detect import BallTracker, spin_windows
 
@@ -119,8 +120,6 @@ class LiveAnalysis:
 
     def _estimate_spin(self, rows: Track) -> None:
         """One spin estimate on the window that ends at the newest track row."""
-        import spin
-
         w_us = self._window["window_us"]
         last = rows.select(rows.flight == rows.flight[-1])
         last = last.select(last.t_us >= last.t_us[-1] - w_us)

@@ -1,0 +1,202 @@
+"""Getting data into a session: a RAW file, a frame-camera video aligned to the event clock.
+
+- :func:`convert_raw`: decode a Prophesee RAW file into a new session store.
+- :func:`attach_video`: copy an MP4 into the session and store its frame times on the event
+  clock (fitted by :func:`fit_time_map`: sync box, else event activity against frame motion).
+- :func:`session_from_raw`: both, for a bare RAW file and its video.
+
+The video file stays an MP4 (copied into ``SESSION/gopro/``); the store keeps
+its per-frame times already mapped onto the event camera's clock
+(``frames/t_us``), the fitted clock map (attrs ``time_sync``) and the frame
+camera's description (attrs ``frame_camera``).
+
+Command line::
+
+    python -m capture.ingest raw recording.raw SESSION_DIR [--time-shift] [--overwrite]
+    python -m capture.ingest video SESSION_DIR GX010042.MP4 [--led-roi X0,Y0,X1,Y1] [--exposure S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from calib import store, sync
+from capture.cliargs import box, print_fields, run_command
+from capture.gopro import chapter_paths, read_video
+from capture.raw import RawFormatError, RawReader, scan
+from capture.raw.stream import DEFAULT_CHUNK_BYTES
+from capture.session import create_session, open_session, update_session
+
+def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool = False,
+                chunk_bytes: int = DEFAULT_CHUNK_BYTES, progress: bool = True) -> dict:
+    """Decode a RAW file into a new session store (events, triggers; header in the root attrs).
+
+    Root attrs written: ``sensor`` (format, geometry, serial, plugin, header fields),
+    ``raw_source`` (file name, size, header style, time shift, decoder counters).
+
+    Returns
+    -------
+    dict
+        ``session`` (the directory), the counts and time range of :func:`capture.raw.scan`, and
+        ``damage`` (a one-line description of damaged words, or None).
+    """
+    reader = RawReader(path, chunk_bytes=chunk_bytes, time_shift=time_shift)
+    if reader.width is None or reader.height is None:
+        reader.close()
+        raise RawFormatError(f"{path}: the header gives no sensor geometry")
+    fields = reader.header["fields"]
+    sensor = {"format": reader.format, "width": reader.width, "height": reader.height,
+              "endianness": reader.header["endianness"], "serial": fields.get("serial_number"),
+              "plugin_name": fields.get("plugin_name"), "system_ID": fields.get("system_ID"),
+              "raw_header": dict(fields)}
+    writer = create_session(session_dir, width=reader.width, height=reader.height,
+                            attrs={"sensor": sensor}, overwrite=overwrite)
+    try:
+        def store(events, triggers):
+            writer.append_events(events)
+            if len(triggers):
+                writer.append_triggers(triggers)
+        summary = scan(reader, store, progress=progress)
+        writer.set_attrs(raw_source={
+            "file": str(path), "size_bytes": reader.size_bytes, "header_style": reader.header["style"],
+            "time_shift_us": reader.decoder.time_shift_us, "stats": reader.decoder.stats,
+            "damage": reader.damage_message()})
+    finally:
+        writer.close()
+    return {"session": str(session_dir), **summary, "damage": reader.damage_message()}
+
+
+MIN_SYNC_TRIGGERS = 4
+"""Fewest trigger events for the sync-box method; with fewer, activity correlation is used."""
+
+
+def _event_times_sample(session, max_events: int = 5_000_000) -> np.ndarray:
+    """Event times (µs) of the session, every k-th event when there are more than ``max_events``."""
+    n = session.n_events
+    step = max(1, n // max_events)
+    return np.asarray(session.root["events"]["t"][:n:step])
+
+
+def fit_time_map(session_dir, video, *, exposure_s: float | None = None, led_roi=None):
+    """Fit the frame-clock -> event-clock map of ``video`` for a session.
+
+    Uses the sync box (LED in the frames, wired to the EVK trigger input) when the
+    session holds trigger events, else the cross-correlation of event activity with
+    frame-difference energy.
+
+    Returns
+    -------
+    time_map : calib.sync.TimeMap
+    exposure_s : float
+        The exposure time used (estimated by the sync-box fit when not given), s.
+    """
+    s = open_session(session_dir)
+    triggers = s.triggers()
+    if len(triggers) >= MIN_SYNC_TRIGGERS:
+        brightness, _ = sync.led_brightness(video.frames(gray=True), roi=led_roi)
+        try:
+            return sync.fit_sync_box(brightness, video.t_s, triggers, exposure_s=exposure_s)
+        except sync.SyncError:
+            pass  # an LED that is not in view: fall back to activity correlation
+    exposure_s = exposure_s or 1.0 / float(video.fps)
+    energy = sync.frame_difference_energy(img for _, _, img in video.frames(gray=True))
+    return sync.fit_activity(_event_times_sample(s), video.t_s, energy, exposure_s=exposure_s), exposure_s
+
+
+def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_roi=None) -> str:
+    """Copy a GoPro recording into the session and store its frame times on the event clock.
+
+    Parameters
+    ----------
+    session_dir : path
+        The session.
+    mp4_path : path
+        The MP4 (first chapter of a chaptered recording).
+    exposure_s : float, optional
+        Frame exposure time, s (default: one frame period).
+    led_roi : tuple, optional
+        Sync-box LED region ``(x0, y0, x1, y1)`` in frame pixels, half-open (default: found
+        automatically as the most varying block of the frames).
+
+    Returns
+    -------
+    str
+        One line describing the fitted time map.
+    """
+    session_dir = Path(session_dir)
+    dest = session_dir / "gopro"
+    dest.mkdir(exist_ok=True)
+    first = None
+    for p in chapter_paths(mp4_path):
+        target = dest / p.name
+        if p.resolve() != target.resolve():
+            shutil.copy2(p, target)
+        first = first or target
+    video = read_video(first)
+    tm, exposure_s = fit_time_map(session_dir, video, exposure_s=exposure_s, led_roi=led_roi)
+    writer = update_session(session_dir)
+    store.attach_video(writer, session_dir, video, tm, exposure_s=exposure_s)
+    writer.set_attrs(frame_camera={"model": "GoPro", "width": video.width, "height": video.height,
+                                   "fps_num": video.fps_num, "fps_den": video.fps_den,
+                                   "n_frames": video.n_frames, "exposure_s": float(exposure_s)})
+    writer.close()
+    sigma = float(np.sqrt(max(tm.cov[0, 0], 0.0)))
+    return (f"{video.n_frames} frames at {float(video.fps):.2f} fps aligned by {tm.method}: "
+            f"video t=0 at event t={float(tm.to_event_us(0.0)) / 1e6:.6f} s, drift {tm.drift_ppm:+.1f} ppm, "
+            f"±{sigma:.0f} µs")
+
+
+def session_from_raw(raw_path, session_dir, mp4_path=None, *, progress: bool = True, led_roi=None,
+                     exposure_s: float | None = None) -> tuple[Path, str | None]:
+    """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session.
+
+    Returns the session directory and the video's one-line alignment note (None without video).
+    """
+    convert_raw(raw_path, session_dir, progress=progress)
+    note = None
+    if mp4_path is not None:
+        note = attach_video(session_dir, mp4_path, led_roi=led_roi, exposure_s=exposure_s)
+    return Path(session_dir), note
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m capture.ingest",
+                                     description="Get a RAW file or a frame-camera video into a session.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_raw = sub.add_parser("raw", help="decode a RAW file (EVT 2.0 / 2.1 / 3.0) into a new session store")
+    p_raw.add_argument("file")
+    p_raw.add_argument("session_dir")
+    p_raw.add_argument("--time-shift", action="store_true",
+                       help="subtract Metavision's default time shift (default: sensor time)")
+    p_raw.add_argument("--overwrite", action="store_true", help="replace an existing session store")
+    p_raw.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_video = sub.add_parser("video", help="attach a GoPro MP4 to a session, aligned to the event clock")
+    p_video.add_argument("session_dir")
+    p_video.add_argument("mp4")
+    p_video.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
+                         help="sync-box LED region in video pixels (default: found automatically)")
+    p_video.add_argument("--exposure", type=float, metavar="S",
+                         help="video shutter time in seconds when locked (default: estimated)")
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    def body():
+        if args.command == "raw":
+            print_fields(convert_raw(args.file, args.session_dir, time_shift=args.time_shift,
+                                     overwrite=args.overwrite, progress=not args.quiet))
+        else:
+            print(attach_video(args.session_dir, args.mp4, led_roi=args.led_roi, exposure_s=args.exposure))
+
+    return run_command(parser.prog, body)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,326 @@
+"""Recording one session: the event camera (real or fake), optionally a GoPro, live analysis.
+
+:func:`record_session` records and only records: the exact RAW bytes plus the session
+store, live detection and spin beside it (never slowing the recording), the GoPro's
+video downloaded into the session and aligned to the event clock. The offline analysis
+is :mod:`capture.pipeline.replay`'s; ``python -m capture.run`` composes the two.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from capture import evk
+from capture.evk.errors import EvkConnectionError
+from capture.ingest import attach_video
+from capture.pipeline.live import LiveAnalysis
+from capture.review import LiveReview, ReviewError
+from capture.session import create_session, disk_free_bytes
+
+RAW_NAME = "events.raw"
+"""The exact byte stream from the sensor, with a RAW header, inside the session directory."""
+GOPRO_DIR = "gopro"
+
+
+class RecorderError(Exception):
+    """A recording could not start or finish; the message is one line for the user."""
+
+
+@dataclass
+class RecordSettings:
+    """What to record and how (the command line, as data).
+
+    Attributes
+    ----------
+    out : Path
+        Session directory to create.
+    serial : str or None
+        EVK serial (None: the first one found).
+    backend : object or None
+        pyusb backend (a ``capture.evk.fake.FakeEVK`` for the fake); None for real USB.
+    biases : dict
+        Named sensor biases.
+    roi : tuple or None
+        ``(x, y, width, height)`` px.
+    erc_ev_s : float or None
+        Event-rate cap, ev/s.
+    gopro : object or None
+        A connected ``capture.gopro.GoPro`` client, or None.
+    gopro_settings : dict
+        ``GoPro.configure`` keyword arguments.
+    led_roi : tuple or None
+        Sync-box LED region ``(x0, y0, x1, y1)`` in GoPro pixels (None: found automatically).
+    exposure_s : float or None
+        GoPro shutter (exposure) time, s, when locked (None: estimated from the sync box).
+    viewer : str
+        ``spawn``, ``serve`` or ``none``.
+    max_duration_s : float or None
+        Stop after this long.
+    min_free_bytes : int
+        Stop recording when the disk has less free space.
+    flush_interval_s : float
+        Longest wall time between commits of the session store (what a crash can lose).
+    quiet : bool
+        No status line or progress bars.
+    attrs : dict
+        Extra session attributes.
+    """
+
+    out: Path
+    serial: str | None = None
+    backend: object | None = None
+    biases: dict = field(default_factory=dict)
+    roi: tuple | None = None
+    erc_ev_s: float | None = None
+    trigger_in: bool = True
+    gopro: object | None = None
+    gopro_settings: dict = field(default_factory=dict)
+    led_roi: tuple | None = None
+    exposure_s: float | None = None
+    viewer: str = "none"
+    max_duration_s: float | None = None
+    min_free_bytes: int = 500 * 2**20
+    flush_interval_s: float = 0.5
+    quiet: bool = False
+    attrs: dict = field(default_factory=dict)
+
+
+@dataclass
+class RecordResult:
+    """Where the session went and what happened."""
+
+    session: Path
+    n_events: int
+    n_triggers: int
+    drops: int
+    skipped_live_events: int
+    stop_reason: str
+    messages: list = field(default_factory=list)
+    error: str | None = None
+
+
+class _Status(threading.Thread):
+    """Every ``period_s``: prints a status line, commits the store if due (``flush``), and stops the
+    recording when the disk is nearly full."""
+
+    def __init__(self, settings: RecordSettings, counters: dict, live, stop: threading.Event,
+                 period_s: float = 0.5, flush=None):
+        super().__init__(name="status", daemon=True)
+        self.settings, self.counters, self.live, self.stop_event = settings, counters, live, stop
+        self.flush = flush
+        self.period_s = period_s
+        self.done = threading.Event()
+        self.tty = sys.stderr.isatty()
+        self.reason: str | None = None
+
+    def run(self) -> None:
+        t_start = time.monotonic()
+        last_n, last_t = 0, t_start
+        while not self.done.wait(self.period_s):
+            now = time.monotonic()
+            n = self.counters["events"]
+            rate = (n - last_n) / max(now - last_t, 1e-9)
+            last_n, last_t = n, now
+            if self.flush is not None:
+                self.flush()
+            try:
+                free = disk_free_bytes(self.settings.out)
+            except OSError as exc:  # the disk went away: stop rather than write into nothing
+                self.reason = f"cannot check the disk ({exc}): recording stopped"
+                self.stop_event.set()
+                continue
+            if free < self.settings.min_free_bytes:
+                self.reason = f"disk almost full ({free / 2**20:.0f} MiB free): recording stopped"
+                self.stop_event.set()
+            if self.settings.quiet:
+                continue
+            line = (f"{now - t_start:6.1f} s  {rate / 1e6:6.2f} Mev/s  {n / 1e6:8.2f} Mev  "
+                    f"drops {self.counters['drops']}  disk {free / 2**30:.1f} GiB free  ")
+            st = self.live.state
+            line += (f"ball ({st.ball[1]:.0f},{st.ball[2]:.0f}) r {st.ball[3]:.0f}  " if st.ball else "no ball  ")
+            if st.spin is not None:
+                line += f"spin {st.spin.rps:.1f} rps (conf {st.spin.confidence:.2f})  "
+            if st.skipped_events:
+                line += f"live analysis skipped {st.skipped_events / 1e6:.2f} Mev (behind)"
+            print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr,
+                  flush=True)
+        if self.tty and not self.settings.quiet:
+            print(file=sys.stderr)
+
+
+def _log(settings: RecordSettings, msg: str) -> None:
+    if not settings.quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def record_session(settings: RecordSettings, stop: threading.Event | None = None) -> RecordResult:
+    """Record one session from an EVK (real or fake) and optionally a GoPro.
+
+    Returns when ``stop`` is set (Ctrl-C), ``max_duration_s`` passes, the disk is
+    nearly full, or a fake device's file ends. Whatever happens after the session
+    is created (a device unplugged mid-stream, a write error, a second Ctrl-C),
+    everything received is kept: the store is flushed and closed, the GoPro is
+    stopped and its video downloaded. A device failure is reported in
+    ``RecordResult.error``.
+    """
+    stop = stop or threading.Event()
+    out = Path(settings.out)
+    if out.exists() and any(out.iterdir()):
+        raise RecorderError(f"{out}: already exists and is not empty; choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    if disk_free_bytes(out) < settings.min_free_bytes:
+        raise RecorderError(f"{out}: only {disk_free_bytes(out) / 2**20:.0f} MiB free on disk")
+
+    camera = evk.open(settings.serial, backend=settings.backend)
+    messages: list[str] = []
+    writer = live = review = gopro_media = stats = None
+    counters = {"events": 0, "triggers": 0, "drops": 0}
+    write_error: list[BaseException] = []
+    reason = "error"
+    device_error: str | None = None
+    lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
+    try:
+        info = camera.info
+        camera.configure(biases=settings.biases or None, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
+                         trigger_in=True if settings.trigger_in else None)
+        attrs = {"sensor": {"board": info.board, "sensor": info.sensor, "serial": info.serial,
+                            "format": info.format, "firmware": info.firmware,
+                            "width": info.width, "height": info.height,
+                            "biases": camera.get_biases()},
+                 "raw_file": RAW_NAME, **settings.attrs}
+        writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
+                                flush_interval_s=settings.flush_interval_s)
+        if settings.viewer != "none":
+            try:
+                review = LiveReview(settings.viewer, width=info.width, height=info.height,
+                                    name=out.name, frames=False)
+            except ReviewError as exc:  # the recording matters more than the viewer
+                first_line = str(exc).strip().splitlines()[0]
+                messages.append(f"live viewer not started ({first_line}); recording without it")
+                _log(settings, messages[-1])
+            if review is not None and review.url:
+                _log(settings, f"Rerun viewer: {review.url}")
+        live = LiveAnalysis(info.width, info.height, review=review)
+
+        def on_batch(events, triggers):
+            if write_error:
+                return
+            try:
+                with lock:
+                    writer.append_events(events)
+                    if len(triggers):
+                        writer.append_triggers(triggers)
+            except OSError as exc:  # disk full or gone: stop, keep what is committed
+                write_error.append(exc)
+                stop.set()
+                return
+            counters["events"] += len(events)
+            counters["triggers"] += len(triggers)
+            live.offer(events)
+            if review is not None:
+                review.log_events(events)
+
+        if settings.gopro is not None:
+            gopro_media = _gopro_start(settings, messages)
+        status = _Status(settings, counters, live, stop, flush=lambda: _flush_if_due(writer, lock))
+        status.start()
+        _log(settings, f"Recording {info.board} {info.sensor} {info.width}x{info.height} "
+                       f"(serial {info.serial}) into {out}; Ctrl-C stops")
+        try:
+            stats = evk.record(camera, out / RAW_NAME, on_batch=on_batch, stop=stop,
+                               max_duration_s=settings.max_duration_s)
+            reason = stats.stop_reason
+        except EvkConnectionError as exc:  # unplugged, stalled...: keep and finalise everything
+            stats = getattr(exc, "stats", None)
+            device_error = f"{type(exc).__name__}: {exc}"
+            reason = "device error"
+        finally:
+            status.done.set()
+            status.join()
+        reason = (status.reason or (f"write error: {write_error[0]}" if write_error else None) or reason)
+        if write_error:
+            messages.append(f"stopped on a write error ({write_error[0]}); everything before it is kept")
+        if device_error:
+            messages.append(f"the camera failed mid-recording ({device_error}); everything received "
+                            "before it is kept")
+        if stats is not None:
+            counters["drops"] = stats.overflows
+            if stats.overflows:
+                messages.append(f"{stats.overflows} host-queue overflow(s): {stats.dropped_bytes} bytes "
+                                "lost (gaps listed in the session attrs)")
+            if stats.time_jumps:
+                messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
+                                "(lost data on the link, or idle periods)")
+    finally:
+        _finalise(writer, live, review, stats, reason, lock, messages)
+        camera.close()
+        if gopro_media is not None:
+            _gopro_finish(settings, gopro_media, out, messages)
+
+    return RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
+                        live.state.skipped_events, reason, messages=messages, error=device_error)
+
+
+def _flush_if_due(writer, lock: threading.Lock) -> None:
+    """Commit buffered events when the flush interval has passed (also while no data arrives)."""
+    with lock:
+        writer.flush_if_due()
+
+
+def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str]) -> None:
+    """Stop live analysis and viewer, then flush, describe and close the session store."""
+    if live is not None:
+        live.close()
+        if live.error is not None:
+            messages.append(f"live analysis stopped early: {live.error}")
+        elif live.state.skipped_events:
+            messages.append(f"live analysis skipped {live.state.skipped_events} events to keep up "
+                            "(the offline analysis covers everything)")
+    if review is not None:
+        review.close()
+    if writer is None:
+        return
+    recording = {"stop_reason": reason,
+                 "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+    if stats is not None:
+        recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
+                         gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
+                         payload_bytes=int(stats.payload_bytes))
+    with lock:
+        writer.set_attrs(recording=recording)
+        writer.close()
+
+
+def _gopro_start(settings: RecordSettings, messages: list[str]):
+    """Configure the GoPro and start it recording; returns the media present before."""
+    gp = settings.gopro
+    gp.open()
+    gp.set_date_time()
+    if settings.gopro_settings:
+        gp.configure(**settings.gopro_settings)
+    before = {m.path for m in gp.media_list()}
+    gp.start_recording()
+    return before
+
+
+def _gopro_finish(settings: RecordSettings, before, out: Path, messages: list[str]) -> None:
+    """Stop the GoPro, download the new video into the session and align it to the event clock."""
+    gp = settings.gopro
+    try:
+        gp.stop_recording()
+        new = [m for m in gp.media_list() if m.path not in before]
+        if not new:
+            messages.append("the GoPro recorded no new video")
+            return
+        paths = gp.download_recording(new[-1], out / GOPRO_DIR, progress=not settings.quiet)
+        sync = attach_video(out, paths[0], led_roi=settings.led_roi, exposure_s=settings.exposure_s)
+        messages.append(f"GoPro video {paths[0].name}: {sync}")
+    except Exception as exc:  # the event recording is safe; report the GoPro problem on one line
+        messages.append(f"GoPro: {exc}")
+    finally:
+        gp.close()
