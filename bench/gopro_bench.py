@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.gopro import FakeGoPro, GoPro, video_timing, write_test_video
+from capture.gopro import FakeGoPro, GoPro, video_timing, write_video
 
 
 def _best(fn, repeat=3):
@@ -31,7 +31,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
         rng = np.random.default_rng(0)
-        clip = write_test_video(d / "clip.mp4", (rng.integers(0, 255, (270, 480), np.uint8) for _ in range(600)), fps=240)
+        clip = write_video(d / "clip.mp4", (rng.integers(0, 255, (270, 480), np.uint8) for _ in range(600)), fps=240)
         blob = d / "big.mp4"
         blob.write_bytes(clip.read_bytes() * max(1, (200 << 20) // clip.stat().st_size))
         size = blob.stat().st_size

@@ -29,10 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
+from capture import cliargs
 from capture.events import TRIGGER_DTYPE
 from .balls import spinning_ball
-from .flight import Recording, flight, rally
-from .io import jsonable
+from .flight import flight, rally
+from .recording import Recording, jsonable
 from .rotation import random_axes
 
 PAPER_VOLLEYBALL_RPS = (10, 20, 30, 50, 100, 200, 300, 500)
@@ -96,22 +97,33 @@ def generate(preset: str, out_dir, *, n: int = 10, seed: int = 0, n_events: int 
     return index
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The ``python -m sim.dataset`` command line."""
     ap = argparse.ArgumentParser(prog="python -m sim.dataset", description=__doc__.split("\n\n")[0])
     ap.add_argument("out", help="output directory")
     ap.add_argument("--preset", choices=PRESETS, default="paper")
-    ap.add_argument("--n", type=int, default=10, help="sequences per setting (paper) or flights (default 10)")
+    ap.add_argument("--n", type=cliargs.positive_int, default=10,
+                    help="sequences per setting (paper) or flights (default 10)")
     ap.add_argument("--n-events", type=int, default=60000, help="events per paper sequence (default 60000)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--session", action="store_true", help="also write a Zarr session store per sequence")
+    ap.add_argument("--quiet", action="store_true", help="no per-sequence progress lines")
+    return ap
+
+
+def main(argv=None) -> int:
+    """Write a dataset (see the module docstring); returns the exit code (0 ok, 1 error)."""
+    ap = build_parser()
     args = ap.parse_args(argv)
-    if args.n < 1:
-        ap.error("--n must be at least 1")
-    t0 = time.perf_counter()
-    index = generate(args.preset, args.out, n=args.n, seed=args.seed, n_events=args.n_events,
-                     session=args.session, progress=lambda name: print(f"  {name}", file=sys.stderr))
-    print(f"{len(index)} sequences in {args.out} ({time.perf_counter() - t0:.1f} s)")
-    return 0
+
+    def body() -> None:
+        t0 = time.perf_counter()
+        progress = None if args.quiet else lambda name: print(f"  {name}", file=sys.stderr)
+        index = generate(args.preset, args.out, n=args.n, seed=args.seed, n_events=args.n_events,
+                         session=args.session, progress=progress)
+        print(f"{len(index)} sequences in {args.out} ({time.perf_counter() - t0:.1f} s)")
+
+    return cliargs.run_command(ap.prog, body)
 
 
 if __name__ == "__main__":

@@ -7,60 +7,17 @@ a :class:`Recording`; :func:`rally` is the quick preset for the built-in demo.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from capture.events import TRIGGER_DTYPE, make_triggers
 from .balls import BALL_RADIUS_M, make_ball
 from .esim import SensorState, merge, noise_events, simulate
 from .frames import SyncBox, render_frames
+from .recording import Recording
 from .rotation import random_rotation, unit
 from .scene import Camera, Player, Scene, court_background
 
 G_M_S2 = 9.81
-
-
-@dataclass
-class Recording:
-    """A simulated recording.
-
-    Attributes
-    ----------
-    events : ndarray of EVENT_DTYPE, sorted by t
-    triggers : ndarray of TRIGGER_DTYPE (sync-box edges; may be empty)
-    width, height : int
-        Event sensor size (px).
-    truth : dict
-        Ground truth (JSON-able through :func:`sim.io.jsonable`); see :func:`flight`.
-    frames : ndarray of uint8, shape (T, H_f, W_f), or None
-        Grey frames of the frame camera.
-    frame_times_us : ndarray of int64, shape (T,), or None
-        Exposure midpoints on the event clock (µs).
-    """
-
-    events: np.ndarray
-    triggers: np.ndarray
-    width: int
-    height: int
-    truth: dict
-    frames: np.ndarray | None = None
-    frame_times_us: np.ndarray | None = None
-
-    def truth_track(self, visible_only: bool = True):
-        """Ground-truth ball circle as a :class:`detect.track.Track` (score 1, flight = segment)."""
-        from capture.events import Track
-
-        tr = self.truth["track"]
-        keep = np.asarray(tr["visible"], bool) if visible_only else np.ones(len(tr["t_us"]), bool)
-        cols = {k: np.asarray(tr[k])[keep] for k in ("t_us", "cx", "cy", "r", "vx", "vy", "flight")}
-        return Track(score=np.ones(int(keep.sum()), np.float32), **cols)
-
-    def save(self, out_dir, **kw):
-        """Write to ``out_dir`` (see :func:`sim.io.save_recording`); returns the written paths."""
-        from .io import save_recording
-
-        return save_recording(self, out_dir, **kw)
 
 
 def _default_path(width, height, radius_px, duration_s, g, rng):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib.sync import fit_activity, fit_sync_box, frame_difference_energy, led_brightness
-from capture.gopro import FakeGoPro, GoPro, read_video, write_test_video
+from capture.gopro import FakeGoPro, GoPro, read_video, write_video
 
 FPS = 240.0
 EXPOSURE_S = 1 / 480
@@ -23,7 +23,7 @@ def sim_rec():
 @pytest.fixture(scope="module")
 def downloaded(sim_rec, tmp_path_factory):
     d = tmp_path_factory.mktemp("gopro")
-    mp4 = write_test_video(d / "sim.mp4", sim_rec.frames, fps=FPS)
+    mp4 = write_video(d / "sim.mp4", sim_rec.frames, fps=FPS)
     with FakeGoPro(mp4) as fake, GoPro(host=fake.host, port=fake.port) as cam:
         cam.start_recording()
         cam.stop_recording()

@@ -3,7 +3,7 @@
 import numpy as np
 
 from calib import CameraPair, Intrinsics, TimeMap, attach_video, load_calibration, store_calibration
-from capture.gopro import read_video, write_test_video
+from capture.gopro import read_video, write_video
 from capture.session import create_session, open_session
 
 
@@ -13,7 +13,7 @@ def test_store_and_load_calibration_with_video(tmp_path):
     pair = CameraPair(frame=Intrinsics(K=np.diag([900.0, 900.0, 1.0]), dist=np.zeros(5), width=48, height=32),
                       homography=np.eye(3) * 2)
     with create_session(tmp_path / "sess", width=64, height=48) as w:
-        video = read_video(write_test_video(tmp_path / "gopro" / "GX010007.MP4", frames, fps=240))
+        video = read_video(write_video(tmp_path / "gopro" / "GX010007.MP4", frames, fps=240))
         store_calibration(w, cameras=pair)
         t_us = attach_video(w, tmp_path / "sess", video, tm, exposure_s=1 / 240)
     s = open_session(tmp_path / "sess")

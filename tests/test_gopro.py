@@ -9,7 +9,7 @@ import pytest
 
 from capture.gopro import (
     CameraBusy, CameraUnreachable, DownloadError, FakeGoPro, GoPro, MediaNotFound, MP4Error,
-    address_from_serial, read_video, video_timing, write_test_video,
+    address_from_serial, read_video, video_timing, write_video,
 )
 from capture.gopro.client import FPS_OPTIONS, LENS_OPTIONS, STATUS_ENCODING
 
@@ -24,7 +24,7 @@ def _frames(n, h=48, w=64):
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
-    return write_test_video(tmp_path_factory.mktemp("clip") / "clip.mp4", _frames(30), fps=240)
+    return write_video(tmp_path_factory.mktemp("clip") / "clip.mp4", _frames(30), fps=240)
 
 
 @pytest.fixture
@@ -153,8 +153,8 @@ def test_missing_media_clear_error(fake, tmp_path):
 
 
 def test_chaptered_recording_download_and_ingest(tmp_path):
-    a = write_test_video(tmp_path / "a.mp4", _frames(12), fps=120)
-    b = write_test_video(tmp_path / "b.mp4", _frames(7), fps=120)
+    a = write_video(tmp_path / "a.mp4", _frames(12), fps=120)
+    b = write_video(tmp_path / "b.mp4", _frames(7), fps=120)
     with FakeGoPro([a, b]) as fake:
         cam = GoPro(host=fake.host, port=fake.port)
         assert [m.name for m in cam.chapters("GX020001.MP4")] == ["GX010001.MP4", "GX020001.MP4"]
@@ -170,7 +170,7 @@ def test_chaptered_recording_download_and_ingest(tmp_path):
 
 @pytest.mark.parametrize("fps", [240, 59.94, 25])
 def test_read_video_exact_timestamps(tmp_path, fps):
-    p = write_test_video(tmp_path / "v.mp4", _frames(20), fps=fps)
+    p = write_video(tmp_path / "v.mp4", _frames(20), fps=fps)
     v = read_video(p)
     expected = Fraction(fps).limit_denominator(1000)
     assert v.fps == expected, (v.fps, expected)
@@ -186,7 +186,7 @@ def test_read_video_exact_timestamps(tmp_path, fps):
 
 def test_opencv_pos_msec_agrees_with_container(tmp_path):
     import cv2
-    p = write_test_video(tmp_path / "v.mp4", _frames(10), fps=59.94)
+    p = write_video(tmp_path / "v.mp4", _frames(10), fps=59.94)
     cap = cv2.VideoCapture(str(p))
     ms = []
     while cap.read()[0]:

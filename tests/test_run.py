@@ -86,12 +86,12 @@ def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
 
 def test_camera_unplugged_mid_recording_finalises_everything(shared_raw_dir, tmp_path, capsys):
     from capture.evk.fake import FakeEVK
-    from capture.gopro import FakeGoPro, GoPro, write_test_video
+    from capture.gopro import FakeGoPro, GoPro, write_video
     from capture.pipeline.record import RecordSettings, record_session
     from capture.run import print_summary
 
     src = shared_raw_dir / TRIGGER_FILE
-    mp4 = write_test_video(tmp_path / "clip.mp4", [np.full((48, 64), v, np.uint8) for v in range(0, 200, 20)], 30)
+    mp4 = write_video(tmp_path / "clip.mp4", [np.full((48, 64), v, np.uint8) for v in range(0, 200, 20)], 30)
     with FakeGoPro(mp4) as fake:
         settings = RecordSettings(out=tmp_path / "s", backend=FakeEVK(src, disconnect_after_bytes=300_000),
                                   gopro=GoPro(host=fake.host, port=fake.port), quiet=True)

@@ -8,7 +8,6 @@ import pytest
 import sim
 from capture.events import EVENT_DTYPE, is_sorted
 from sim.dataset import main as dataset_main
-from sim.io import load_recording
 
 W, H = 240, 160
 
@@ -139,7 +138,7 @@ def test_save_and_load_round_trip(tmp_path):
     rec = small_flight(duration_s=0.02, fps=120.0, sync=True)
     paths = rec.save(tmp_path / "rec", session=True)
     assert {"raw", "video", "truth", "session"} <= set(paths)
-    back = load_recording(tmp_path / "rec")
+    back = sim.Recording.load(tmp_path / "rec")
     assert np.array_equal(back.events, rec.events)
     assert np.array_equal(back.triggers, rec.triggers)
     assert back.frames.shape == rec.frames.shape
@@ -153,16 +152,39 @@ def test_save_and_load_round_trip(tmp_path):
     np.testing.assert_array_equal(s.frames()["t_us"], rec.frame_times_us)
 
 
+def test_one_frame_recording_round_trips(tmp_path):
+    rec = small_flight(duration_s=0.02, fps=120.0)
+    one = sim.Recording(rec.events, rec.triggers, W, H, rec.truth, rec.frames[:1], rec.frame_times_us[:1])
+    one.truth["frames"]["t_us"] = one.frame_times_us
+    back = sim.Recording.load(one.save(tmp_path / "one")["truth"].parent)
+    assert back.frames.shape == (1, H, W)
+    np.testing.assert_array_equal(back.frame_times_us, one.frame_times_us)
+
+
 def test_dataset_cli_paper_preset(tmp_path, capsys):
     assert dataset_main([str(tmp_path), "--preset", "paper", "--n", "1", "--n-events", "1500", "--seed", "2"]) == 0
     index = json.loads((tmp_path / "index.json").read_text())["sequences"]
     assert len(index) == 9
     assert sorted({(s["texture"], s["rps"]) for s in index}) == sorted(
         [("volleyball", float(r)) for r in (10, 20, 30, 50, 100, 200, 300, 500)] + [("soccer", 100.0)])
-    one = load_recording(tmp_path / index[0]["name"])
+    one = sim.Recording.load(tmp_path / index[0]["name"])
     assert one.events.size == 1500 and one.width == 640 and one.height == 480
     assert one.truth["threshold"] == 0.15
     np.testing.assert_allclose(np.linalg.norm(one.truth["axis"]), 1.0)
+    assert "volleyball_010rps_00" in capsys.readouterr().err  # progress lines
+
+
+def test_dataset_cli_errors_are_one_line(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert dataset_main([str(blocker), "--n", "1", "--n-events", "100", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("python -m sim.dataset: error: ") and err.count("\n") == 1
+    with pytest.raises(SystemExit) as exc:
+        dataset_main([str(tmp_path), "--n", "0"])
+    assert exc.value.code == 2
+    with pytest.raises(FileNotFoundError, match="truth.json"):
+        sim.Recording.load(tmp_path)
 
 
 def test_flight_rejects_bad_arguments():

@@ -132,6 +132,14 @@ class Video:
         return self.frames()
 
 
+def _nominal_fps(timing) -> Fraction:
+    """Frame rate (frames per second) of a file's video track; a one-frame file's is
+    ``timescale / duration``, its one sample's duration."""
+    if len(timing.pts) == 1 and timing.duration > 0:
+        return Fraction(timing.timescale, timing.duration)
+    return timing.fps
+
+
 def read_video(path) -> Video:
     """Open a GoPro recording (chapters joined) with per-frame container timestamps.
 
@@ -157,7 +165,7 @@ def read_video(path) -> Video:
     for p in paths:
         timing = video_timing(p)
         if fps is None:
-            fps, width, height = timing.fps, timing.width, timing.height
+            fps, width, height = _nominal_fps(timing), timing.width, timing.height
         starts.append(n)
         t_parts.append(t0 + timing.t_s)
         t0 += timing.duration / timing.timescale
@@ -166,17 +174,28 @@ def read_video(path) -> Video:
                  chapter_start=np.asarray(starts, np.int64))
 
 
-def write_test_video(path, frames, fps: float) -> Path:
-    """Write frames to an MP4 (``mp4v``) with OpenCV; used by the fake camera and tests.
+def write_video(path, frames, fps: float) -> Path:
+    """Write frames to an MP4 (``mp4v``) with OpenCV; used by the simulator and tests.
 
     Parameters
     ----------
     path : str or Path
-        Output file.
+        Output file; missing parent folders are created.
     frames : iterable of ndarray
-        ``(H, W, 3)`` BGR or ``(H, W)`` gray uint8 images, all the same size.
+        ``(H, W, 3)`` BGR or ``(H, W)`` grey uint8 images, all the same size (px); a
+        ``(T, H, W)`` or ``(T, H, W, 3)`` array is such an iterable. No frames: no file.
     fps : float
-        Frame rate written to the container.
+        Frame rate written to the container (frames per second).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    OSError
+        When OpenCV cannot open a writer for ``path``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
