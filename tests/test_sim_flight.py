@@ -179,7 +179,7 @@ def test_dataset_cli_errors_are_one_line(tmp_path, capsys):
     blocker.write_text("")
     assert dataset_main([str(blocker), "--n", "1", "--n-events", "100", "--quiet"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("python -m sim.dataset: error: ") and err.count("\n") == 1
+    assert err.startswith("sim.dataset: error: ") and err.count("\n") == 1
     with pytest.raises(SystemExit) as exc:
         dataset_main([str(tmp_path), "--n", "0"])
     assert exc.value.code == 2

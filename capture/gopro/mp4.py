@@ -53,10 +53,13 @@ class VideoTiming:
     def fps(self) -> Fraction:
         """Nominal frame rate as an exact fraction (frames per second).
 
-        The most common sample duration ``d`` gives ``timescale / d`` (e.g. 60000/1001 for 59.94).
+        The most common sample duration ``d`` gives ``timescale / d`` (e.g. 60000/1001 for 59.94);
+        a one-frame track's is its one sample's duration, the track's duration.
         """
+        if len(self.pts) == 1 and self.duration > 0:
+            return Fraction(self.timescale, self.duration)
         if len(self.pts) < 2:
-            raise MP4Error("frame rate needs at least two frames")
+            raise MP4Error("frame rate needs at least one frame of known duration")
         d = np.diff(np.sort(self.pts))
         vals, counts = np.unique(d, return_counts=True)
         return Fraction(self.timescale, int(vals[np.argmax(counts)]))

@@ -132,14 +132,6 @@ class Video:
         return self.frames()
 
 
-def _nominal_fps(timing) -> Fraction:
-    """Frame rate (frames per second) of a file's video track; a one-frame file's is
-    ``timescale / duration``, its one sample's duration."""
-    if len(timing.pts) == 1 and timing.duration > 0:
-        return Fraction(timing.timescale, timing.duration)
-    return timing.fps
-
-
 def read_video(path) -> Video:
     """Open a GoPro recording (chapters joined) with per-frame container timestamps.
 
@@ -165,7 +157,7 @@ def read_video(path) -> Video:
     for p in paths:
         timing = video_timing(p)
         if fps is None:
-            fps, width, height = _nominal_fps(timing), timing.width, timing.height
+            fps, width, height = timing.fps, timing.width, timing.height
         starts.append(n)
         t_parts.append(t0 + timing.t_s)
         t0 += timing.duration / timing.timescale
