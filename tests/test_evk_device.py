@@ -177,3 +177,32 @@ def test_trigger_in():
     cam.enable_trigger_in()
     assert fake.registers[0x7004] & (1 << 10) and (fake.registers.get(0x44, 0) >> 12) & 0xF == 0xF
     cam.close()
+
+
+@pytest.mark.parametrize("sensor", ["imx636", "gen41"])
+def test_configure_is_the_individual_settings_in_order(sensor):
+    biases = {"bias_fo": 10, "bias_hpf": 5} if sensor == "imx636" else {"bias_fo": 0x50}
+    one_call, cam = opened(sensor=sensor)
+    start = len(one_call.register_log())
+    cam.configure(biases=biases, roi=(100, 50, 200, 100), erc_ev_s=20e6, trigger_in=True)
+    configured = one_call.register_log()[start:]
+    cam.close()
+    separate, cam = opened(sensor=sensor)
+    start = len(separate.register_log())
+    cam.set_biases(**biases)
+    cam.set_roi(100, 50, 200, 100)
+    cam.set_erc(20e6)
+    cam.enable_trigger_in(True)
+    assert configured == separate.register_log()[start:] and configured
+    cam.close()
+
+
+def test_configure_leaves_what_is_not_given():
+    fake, cam = opened(sensor="gen31")  # Gen3.1 refuses any set_biases call: empty biases must not make one
+    start = len(fake.register_log())
+    cam.configure()
+    cam.configure(biases={})
+    assert fake.register_log()[start:] == []
+    cam.configure(trigger_in=False)
+    assert fake.register_log()[start:]  # False is given: the trigger input is written (disabled)
+    cam.close()

@@ -189,11 +189,24 @@ def test_lost_data_shows_as_time_base_jump(tmp_path, shared_raw_dir):
 
 
 def test_cli_records_through_the_fake(tmp_path, shared_raw_dir, capsys):
-    from capture.evk.__main__ import main
+    from capture.evk.cli import main
 
     src = shared_raw_dir / ROS
     out = tmp_path / "cli.raw"
-    assert main(["record", str(out), "--fake", str(src), "--pace", "max", "--bias", "fo=5", "--erc", "2e7"]) == 0
+    assert main(["record", str(out), "--fake", str(src), "--speed", "max", "--bias", "fo=5", "--erc", "2e7",
+                 "--roi", "100,50,200,100", "--trigger"]) == 0
     assert payload_of(out) == payload_of(src)
+    capsys.readouterr()
     assert main(["record", str(out), "--fake", str(src), "--bias", "fo=99"]) == 1
-    assert "bias_fo offset 99 is outside" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith("python -m capture.evk: error: bias_fo offset 99 is outside") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("option", [["--roi", "1,2,3"], ["--roi", "1 2 3 4"], ["--bias", "fo"], ["--bias", "fo=x"],
+                                    ["--speed", "fast"]])
+def test_cli_usage_errors_exit_2(tmp_path, option, capsys):
+    from capture.evk.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["record", str(tmp_path / "x.raw"), *option])
+    assert exc.value.code == 2 and "python -m capture.evk record: error:" in capsys.readouterr().err

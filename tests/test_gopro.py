@@ -205,12 +205,18 @@ def test_missing_and_bad_video_files(tmp_path):
         FakeGoPro(tmp_path / "missing.mp4")
 
 
-def test_cli_download_last_from_fake_and_unreachable(clip, tmp_path, capsys):
-    from capture.gopro.__main__ import main
-    assert main(["--fake", str(clip), "download", "--last", str(tmp_path / "out")]) == 0
-    out = capsys.readouterr().out.strip().splitlines()
-    assert out == [str(tmp_path / "out" / "GX010001.MP4")]
+def test_cli_download_from_fake_and_errors(clip, tmp_path, capsys):
+    from capture.gopro.cli import main
+    assert main(["--fake", str(clip), "download", "--quiet", "--last", str(tmp_path / "out")]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.strip().splitlines() == [str(tmp_path / "out" / "GX010001.MP4")] and not captured.err
     assert (tmp_path / "out" / "GX010001.MP4").read_bytes() == clip.read_bytes()
-    assert main(["--host", "127.0.0.1", "--port", str(_closed_port()), "state"]) == 2
+    assert main(["--host", "127.0.0.1", "--port", str(_closed_port()), "state"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("error: GoPro at 127.0.0.1:") and "unreachable" in err and err.count("\n") == 1
+    assert err.startswith("python -m capture.gopro: error: GoPro at 127.0.0.1:") and "unreachable" in err
+    assert err.count("\n") == 1
+    assert main(["--fake", str(tmp_path / "missing.mp4"), "state"]) == 1
+    assert capsys.readouterr().err.startswith("python -m capture.gopro: error: FakeGoPro: simulated video not found")
+    with pytest.raises(SystemExit) as exc:
+        main(["--fake", str(clip), "download", str(tmp_path / "out")])
+    assert exc.value.code == 2 and "give a file NAME or --last" in capsys.readouterr().err

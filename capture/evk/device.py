@@ -341,6 +341,38 @@ class Camera:
         )
 
     # ---- settings -------------------------------------------------------------------
+    def configure(self, *, biases: dict[str, int] | None = None,
+                  roi: tuple[int, int, int, int] | None = None,
+                  erc_ev_s: float | None = None, trigger_in: bool | None = None) -> None:
+        """Apply the recording settings that are given, in this order: biases, ROI, event
+        rate cap, trigger input. A setting left ``None`` is not touched.
+
+        Parameters
+        ----------
+        biases : dict of str to int, optional
+            Named biases for :meth:`set_biases` (IMX636: offsets from the factory trim, DAC
+            counts; Gen4.1: absolute 0-255; Gen3.1: mV). Empty or ``None``: not touched.
+        roi : (int, int, int, int), optional
+            ``(x, y, width, height)`` in pixels for :meth:`set_roi`.
+        erc_ev_s : float, optional
+            Event rate cap for :meth:`set_erc`, events/s.
+        trigger_in : bool, optional
+            Enable (``True``) or disable (``False``) the external trigger input.
+
+        Raises
+        ------
+        BiasRangeError, ValueError
+            A value out of range; settings before it in the order above are already applied.
+        """
+        if biases:
+            self.set_biases(**biases)
+        if roi is not None:
+            self.set_roi(*roi)
+        if erc_ev_s is not None:
+            self.set_erc(erc_ev_s)
+        if trigger_in is not None:
+            self.enable_trigger_in(trigger_in)
+
     def set_biases(self, **named: int) -> None:
         """Set named biases (``bias_fo``, ``bias_hpf``, ``bias_diff_on``, ``bias_diff``,
         ``bias_diff_off``, ``bias_refr``; the ``bias_`` prefix is optional). IMX636: offsets
