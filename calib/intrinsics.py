@@ -1,7 +1,7 @@
 """Camera intrinsics: checkerboard / ChArUco calibration with OpenCV, for the GoPro and for the
 event camera (a blinking pattern accumulated from events into an image).
 
-Pixel coordinates follow ``conventions.md``: (u, v) = (x, y), pixel centres at integers; the
+Pixel coordinates follow ``docs/conventions.md``: (u, v) = (x, y), pixel centres at integers; the
 camera frame is X right, Y down, Z forward. Distances are in metres.
 """
 

@@ -1,4 +1,4 @@
-"""Rotations about an axis (right-hand rule, camera frame of ``conventions.md``)."""
+"""Rotations about an axis (right-hand rule, camera frame of ``docs/conventions.md``)."""
 
 from __future__ import annotations
 

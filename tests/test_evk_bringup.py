@@ -1,5 +1,5 @@
 """Bring-up against the specification: the register sequences are parsed straight from
-evk-usb.md (Appendices A, D, E), the post-init rows are re-typed here from Appendix B and
+the shared specification ../shared/docs/evk-usb.md (Appendices A, D, E; docs/evk-usb.md summarises them), the post-init rows are re-typed here from Appendix B and
 section 3.13, and the fake's access log must equal them access for access, in order."""
 
 import re

@@ -1,4 +1,4 @@
-"""Treuzell framing against the byte-exact examples of evk-usb.md section 2.4, and the
+"""Treuzell framing against the byte-exact examples of docs/evk-usb.md section 2.4, and the
 answer checks of section 2.5, with a minimal stand-in device (not the fake)."""
 
 import struct

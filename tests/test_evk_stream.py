@@ -199,7 +199,7 @@ def test_cli_records_through_the_fake(tmp_path, shared_raw_dir, capsys):
     capsys.readouterr()
     assert main(["record", str(out), "--fake", str(src), "--bias", "fo=99"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("python -m capture.evk: error: bias_fo offset 99 is outside") and err.count("\n") == 1
+    assert err.startswith("capture.evk: error: bias_fo offset 99 is outside") and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("option", [["--roi", "1,2,3"], ["--roi", "1 2 3 4"], ["--bias", "fo"], ["--bias", "fo=x"],

@@ -213,10 +213,10 @@ def test_cli_download_from_fake_and_errors(clip, tmp_path, capsys):
     assert (tmp_path / "out" / "GX010001.MP4").read_bytes() == clip.read_bytes()
     assert main(["--host", "127.0.0.1", "--port", str(_closed_port()), "state"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("python -m capture.gopro: error: GoPro at 127.0.0.1:") and "unreachable" in err
+    assert err.startswith("capture.gopro: error: GoPro at 127.0.0.1:") and "unreachable" in err
     assert err.count("\n") == 1
     assert main(["--fake", str(tmp_path / "missing.mp4"), "state"]) == 1
-    assert capsys.readouterr().err.startswith("python -m capture.gopro: error: FakeGoPro: simulated video not found")
+    assert capsys.readouterr().err.startswith("capture.gopro: error: FakeGoPro: simulated video not found")
     with pytest.raises(SystemExit) as exc:
         main(["--fake", str(clip), "download", str(tmp_path / "out")])
     assert exc.value.code == 2 and "give a file NAME or --last" in capsys.readouterr().err

@@ -10,7 +10,7 @@ from sim.scene import LOG_EPS, Ball, Camera, Scene
 
 
 def warp_sharpness(ev, center, r, axis, omega, t_ref_s):
-    """Variance of the polarity image of events warped to ``t_ref_s`` (conventions.md model)."""
+    """Variance of the polarity image of events warped to ``t_ref_s`` (docs/conventions.md model)."""
     x = ev["x"].astype(float) - center[0]
     y = ev["y"].astype(float) - center[1]
     ok = x * x + y * y < (0.95 * r) ** 2

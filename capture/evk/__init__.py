@@ -12,7 +12,7 @@ Quick use::
 
 Testing without hardware: ``evk.open(backend=evk.fake.FakeEVK("file.raw"))`` runs the same
 driver against a file-backed emulated EVK (a pyusb backend). The protocol and register
-sequences follow ``evk-usb.md`` (openeb HAL 5.1.1).
+sequences follow ``docs/evk-usb.md`` (openeb HAL 5.1.1).
 
 Command line: ``python -m capture.evk`` (:mod:`capture.evk.cli`).
 """

@@ -1,6 +1,6 @@
 """Discovery and opening of Prophesee EVK3/EVK4 cameras over pyusb, and the :class:`Camera`.
 
-Follows ``evk-usb.md`` section 1.3 in order: early quirk from ``bcdDevice``, interface /
+Follows ``docs/evk-usb.md`` section 1.3 in order: early quirk from ``bcdDevice``, interface /
 endpoint scan by position, open and read strings, detach a kernel driver, claim ("busy" on
 failure), SET_INTERFACE (unless the quirk applies; never SET_CONFIGURATION), firmware version
 and build date, refusal of firmware < 3.8.0, Treuzell enumeration and sensor identification,

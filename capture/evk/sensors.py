@@ -1,6 +1,6 @@
 """Sensor drivers: identification, bring-up, start/stop and settings (biases, ROI, ERC, trigger).
 
-One class per Treuzell main device (``evk-usb.md`` sections 2.7, 3): :class:`Imx636`
+One class per Treuzell main device (``docs/evk-usb.md`` sections 2.7, 3): :class:`Imx636`
 (EVK4 and EVK3-HD with IMX636), :class:`Gen31` (EVK3 VGA) and :class:`Gen41` (older
 EVK3-HD, best effort). Register sequences are data in ``seq_*`` modules; this module only
 orders them and computes the few values that depend on user input.

@@ -1,6 +1,6 @@
 """EVK3 Gen3.1 VGA (``psee,ccam5_fpga``) register sequences, as data.
 
-Transcribed from ``evk-usb.md`` Appendix D (``gen31_evk3_*``) and section 3.13 (rows G1-G11).
+Transcribed from ``docs/evk-usb.md`` Appendix D (``gen31_evk3_*``) and section 3.13 (rows G1-G11).
 All addresses are FPGA registers of the main Treuzell device. Op format as in
 :mod:`capture.evk.seq_imx636`. Run order: open = STOP, DESTROY, INIT, POST_INIT;
 start = START (includes a 250 ms wait); stop = STOP; close = DESTROY.

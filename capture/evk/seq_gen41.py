@@ -1,6 +1,6 @@
 """EVK3-HD with Gen4.1 (``psee,ccam5_gen41``) register sequences, as data (best effort).
 
-Transcribed from ``evk-usb.md`` Appendix E (``gen41_evk3_*``); the spec's compressed rows
+Transcribed from ``docs/evk-usb.md`` Appendix E (``gen41_evk3_*``); the spec's compressed rows
 "A ... B (step 4, N regs)" are expanded here into the N plain writes they stand for. Op format
 as in :mod:`capture.evk.seq_imx636`. After INIT the HAL does (section 3.14): illuminance
 mirror + LIFO (IMX636 rows B9-B18), ERC initialise and enable, ROI reset, trigger disabled,

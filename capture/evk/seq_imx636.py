@@ -1,6 +1,6 @@
 """IMX636 (EVK4, EVK3-HD with IMX636) register sequences, as data.
 
-Transcribed from ``evk-usb.md`` Appendix A (``issd_evk3_imx636_*``) and Appendix B (the
+Transcribed from ``docs/evk-usb.md`` Appendix A (``issd_evk3_imx636_*``) and Appendix B (the
 HAL's ordered accesses after the init sequence). All accesses go to the main Treuzell
 device. Ops (see :mod:`capture.evk.treuzell`):
 

@@ -2,7 +2,7 @@
 
 A command is one bulk OUT write of a frame ``[property u32 LE][size u32 LE][payload]`` on the
 control OUT endpoint, followed by one bulk IN read of the answer (same shape) on the control
-IN endpoint (``evk-usb.md`` section 2). Register sequences are tuples of ops (see
+IN endpoint (``docs/evk-usb.md`` section 2). Register sequences are tuples of ops (see
 :mod:`capture.evk.seq_imx636`).
 """
 

@@ -186,8 +186,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
     try:
         info = camera.info
-        camera.configure(biases=settings.biases or None, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
-                         trigger_in=True if settings.trigger_in else None)
+        camera.configure(biases=settings.biases, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
+                         trigger_in=settings.trigger_in or None)
         attrs = {"sensor": {"board": info.board, "sensor": info.sensor, "serial": info.serial,
                             "format": info.format, "firmware": info.firmware,
                             "width": info.width, "height": info.height,
