@@ -1,6 +1,7 @@
-"""Bring-up against the specification: the register sequences are parsed straight from
-the shared specification ../shared/docs/evk-usb.md (Appendices A, D, E; docs/evk-usb.md summarises them), the post-init rows are re-typed here from Appendix B and
-section 3.13, and the fake's access log must equal them access for access, in order."""
+"""Bring-up against the specification: the register sequences are parsed straight from the
+shared specification ../shared/docs/evk-usb.md (Appendices A, D, E, which docs/evk-usb.md
+summarises), the post-init rows are re-typed here from Appendix B and section 3.13, and the
+fake's access log must equal them access for access, in order."""
 
 import re
 from pathlib import Path
