@@ -18,9 +18,9 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from capture import review
-from capture.events import make_events, make_triggers
+from capture.events import Track, make_events, make_triggers
+from capture.review.cli import main
 from capture.session import SessionError, create_session, open_session
-from detect.track import Track
 
 SLICE_US = 1000
 CAP = 500
@@ -289,7 +289,7 @@ def test_bad_inputs_give_clear_errors(tmp_path):
 
 def test_cli(tmp_path, capsys):
     session = _make_session(tmp_path / "session", frames="none")
-    assert review.main([str(session), "--rrd", str(tmp_path / "cli.rrd"), "--no-progress"]) == 0
+    assert main([str(session), "--rrd", str(tmp_path / "cli.rrd"), "--quiet"]) == 0
     assert "1200" not in capsys.readouterr().err and RrdReader(tmp_path / "cli.rrd").recordings()
     proc = subprocess.run([sys.executable, "-m", "capture.review", str(tmp_path / "nope"), "--rrd",
                            str(tmp_path / "n.rrd")], capture_output=True, text=True, timeout=60)
@@ -377,12 +377,18 @@ def test_live_review_bad_arguments():
         review.LiveReview("rrd")
 
 
-def test_axis_angles_and_circle_at():
+def test_axis_angles_and_track_circles_at():
     az, el = review.axis_angles_deg([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-1, 0, 0]])
     np.testing.assert_allclose(az, [0, 90, 0, -90], atol=1e-9)
     np.testing.assert_allclose(el, [0, 0, 90, 0], atol=1e-9)
     track = _track()
-    cx, cy, r, valid = review.circle_at(track, [10_250, 14_000, 15_500, 20_000])
+    cx, cy, r, valid = track.circles_at([10_250, 14_000, 15_500, 20_000])
     np.testing.assert_array_equal(valid, [True, False, True, False])
     np.testing.assert_allclose([cx[0], cy[0], r[0]], track.at(10_250)[:3])
     np.testing.assert_allclose([cx[2], cy[2], r[2]], track.at(15_500)[:3])
+
+
+def test_live_review_reports_spin_without_its_columns(tmp_path):
+    with review.LiveReview("rrd", rrd_path=tmp_path / "bad.rrd", slice_us=SLICE_US) as live:
+        live.log_spin({"t_start_us": [0], "t_end_us": [1000]})
+    assert isinstance(live.error, review.ReviewError) and "lack" in str(live.error)

@@ -1,0 +1,3 @@
+from capture.review.cli import main
+
+raise SystemExit(main())

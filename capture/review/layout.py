@@ -1,0 +1,156 @@
+"""What a review looks like: recording ids, timeline, entity paths, colours and the blueprint.
+
+One Rerun recording per session (application id :data:`APPLICATION_ID`), on the
+timeline :data:`TIMELINE` (``sensor_time``): µs on the event clock, stored as a
+Rerun *duration* so that the viewer shows seconds since the sensor's time zero.
+
+Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.review.LiveReview`)::
+
+    events/on, events/off        Points2D: events of one time slice (ON green, OFF red)
+    events/sensor                Boxes2D (static): the sensor outline
+    events/ball                  Ellipses2D: ball circle from the track
+    events/spin_axis             Arrows2D: spin axis projected on the image, at the ball centre
+    frames/image                 EncodedImage (JPEG) or VideoFrameReference into video/asset
+    frames/ball                  Ellipses2D: ball circle mapped into the frame (needs calibration)
+    video/asset                  AssetVideo (static): the session's MP4, when it has one
+    ball3d/sphere, ball3d/axis   Ellipsoids3D (static) and Arrows3D: unit ball and spin axis
+    plots/rps                    Scalars: spin rate, rev/s
+    plots/axis/azimuth_deg       Scalars: axis azimuth, see :func:`axis_angles_deg`
+    plots/axis/elevation_deg     Scalars: axis elevation
+    plots/confidence             Scalars: spin confidence 0..1
+    plots/event_rate/events_ev_s Scalars: event rate per slice (before decimation), ev/s
+    plots/status/<name>          Scalars: live status numbers (drops, ...)
+    log                          TextLog: notes (decimation, skipped batches, ...)
+
+2D entities use Rerun's image coordinates, where pixel ``(0, 0)`` covers
+``[0, 1) x [0, 1)``: a pixel coordinate ``u`` (pixel centre at integer values,
+see conventions) is logged as ``u + PIXEL_OFFSET``.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+if TYPE_CHECKING:
+    from capture.session import Session
+
+APPLICATION_ID = "courtside-spin"
+TIMELINE = "sensor_time"
+PIXEL_OFFSET = 0.5
+"""Added to pixel coordinates when logging 2D entities (Rerun puts pixel centres at +0.5)."""
+
+EVENTS_ON = "events/on"
+EVENTS_OFF = "events/off"
+EVENTS_SENSOR = "events/sensor"
+EVENTS_BALL = "events/ball"
+EVENTS_SPIN_AXIS = "events/spin_axis"
+FRAMES_IMAGE = "frames/image"
+FRAMES_BALL = "frames/ball"
+VIDEO_ASSET = "video/asset"
+BALL3D = "ball3d"
+BALL3D_SPHERE = "ball3d/sphere"
+BALL3D_AXIS = "ball3d/axis"
+PLOT_RPS = "plots/rps"
+PLOT_AZIMUTH = "plots/axis/azimuth_deg"
+PLOT_ELEVATION = "plots/axis/elevation_deg"
+PLOT_CONFIDENCE = "plots/confidence"
+PLOT_EVENT_RATE = "plots/event_rate/events_ev_s"
+PLOT_STATUS = "plots/status"
+TEXT_LOG = "log"
+
+# colours, RGB 0..255
+ON_COLOR = (60, 220, 90)
+OFF_COLOR = (235, 70, 60)
+BALL_COLOR = (255, 210, 0)
+AXIS_COLOR = (80, 160, 255)
+
+DEFAULT_SLICE_US = 2000
+"""Event slice length, µs."""
+DEFAULT_MAX_EVENTS_PER_SLICE = 2000
+"""Events logged per slice at most; a fuller slice is decimated by a stride."""
+
+
+def time_column(t_us) -> rr.TimeColumn:
+    """Times ``t_us`` (µs, shape (N,)) as a column of :data:`TIMELINE` (a Rerun duration)."""
+    return rr.TimeColumn(TIMELINE, duration=np.asarray(t_us, dtype=np.int64).astype("timedelta64[us]"))
+
+
+def axis_angles_deg(axis) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth and elevation (degrees) of unit spin axes in the camera frame (X right, Y down, Z forward).
+
+    ``azimuth = atan2(x, z)``: 0 along +Z (away from the camera), +90 along +X (right).
+    ``elevation = asin(-y)``: +90 pointing up (-Y), -90 pointing down.
+
+    Parameters
+    ----------
+    axis : array_like, shape (N, 3)
+
+    Returns
+    -------
+    azimuth_deg, elevation_deg : ndarray of float64, shape (N,)
+    """
+    a = np.asarray(axis, dtype=np.float64).reshape(-1, 3)
+    norm = np.linalg.norm(a, axis=1)
+    a = a / np.where(norm > 0, norm, 1.0)[:, None]
+    return np.degrees(np.arctan2(a[:, 0], a[:, 2])), np.degrees(np.arcsin(np.clip(-a[:, 1], -1.0, 1.0)))
+
+
+def circle_mapping(attrs: Mapping) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Event-sensor circles -> frame circles, ``(N, 3) -> (N, 3)`` px, from the session's calibration.
+
+    Uses ``attrs["calibration"]`` (a :class:`calib.stereo.CameraPair` dict: stereo model
+    or homography). Returns None when the session has no calibration.
+    """
+    from calib.stereo import CameraPair  # imports OpenCV: only when a session is reviewed
+
+    calib = attrs.get("calibration")
+    if not isinstance(calib, Mapping):
+        return None
+    pair = CameraPair.from_dict(calib)
+    if pair.homography is None and pair.extrinsics is None:
+        return None
+    return pair.event_to_frame
+
+
+def session_recording_id(session: Session) -> str:
+    """Stable Rerun recording id of a session (from its resolved path and creation time)."""
+    key = f"{session.path.resolve()}|{session.attrs.get('created_utc', '')}"
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, key))
+
+
+def blueprint(*, frames: bool = True, width: int | None = None, height: int | None = None,
+              status: bool = False) -> rrb.Blueprint:
+    """The review layout: events, GoPro frames, 3D spin axis on top; time series below.
+
+    Parameters
+    ----------
+    frames : bool
+        Include the GoPro frames view.
+    width, height : int, optional
+        Sensor size in pixels, to frame the events view.
+    status : bool
+        Include live status numbers (drops, ...) with the event rate.
+    """
+    bounds = (rrb.VisualBounds2D(x_range=[0, width], y_range=[0, height])
+              if width and height else None)
+    top = [rrb.Spatial2DView(origin="events", name="Events", visual_bounds=bounds)]
+    if frames:
+        top.append(rrb.Spatial2DView(origin="frames", name="GoPro"))
+    top.append(rrb.Spatial3DView(origin=BALL3D, name="Spin axis"))
+    rate_contents = ["+ /plots/event_rate/**"] + (["+ /plots/status/**"] if status else [])
+    bottom = [
+        rrb.TimeSeriesView(origin=PLOT_RPS, name="Spin rate (rps)"),
+        rrb.TimeSeriesView(origin="plots/axis", name="Axis angles (deg)"),
+        rrb.TimeSeriesView(origin=PLOT_CONFIDENCE, name="Confidence"),
+        rrb.TimeSeriesView(origin="plots", contents=rate_contents,
+                           name="Event rate (ev/s)" + (" and status" if status else "")),
+        rrb.TextLogView(origin=TEXT_LOG, name="Log"),
+    ]
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom), row_shares=[3, 2]),
+                         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
