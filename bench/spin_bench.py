@@ -1,21 +1,26 @@
-"""Spin benchmark after the seed paper's Figs 9-10 / Table 1, on the simulator.
+"""Spin benchmark: the courtside matrix, the seed paper's protocol and replay-like rally windows.
 
-Rows: volleyball at 10..500 rps and soccer at 100 rps (random axes, 640x480,
-threshold 0.15, 50,000 events, ball radius 100 px), plus volleyball at 1,000 rps and
-small balls (radius 30 px, 5,000 and 20,000 events).  Methods: ``fast`` (default
-estimator), ``paper`` (Adam, 1,500 iterations, 50k events; slow, so run on fewer
-sequences: ``--paper-seqs``), and the image baseline (two-frame registration after
-Tamaki et al.) at 60/120/240/480 fps on sharp rendered frames of the same ball.
+Default: the matrix of :mod:`bench.spin_cases` (each ball texture x 30/200/800/1,200 rps x
+still/translating x orthographic/perspective x ideal/realistic sensor), on the tuning seeds
+and on the held-out seeds.  Per row: median/mean axis error, rps error, success (axis < 5 deg
+and rps < 5 %), trusted windows (confidence >= 0.5), confident failures (trusted but not a
+success), ms per estimate; then a reliability table (confidence bins against the observed
+success) and how well the reported uncertainty covers the error.
 
-Prints per row and method: median/mean axis error (deg), median/mean omega error
-(%), success rate (axis < 5 deg and omega < 5 %), mean and median time per estimate, and the
-speed ratio paper/fast measured on the same sequences in this run.  Times are CPU time of
-this process on one core (OpenCV and BLAS held to one thread, as replay workers run), so
-the load of other processes on the machine does not skew the ratio.
+``--paper``: after the seed paper's Figs 9-10 / Table 1: volleyball at 10..500 rps and soccer
+at 100 rps (random axes, 640x480, threshold 0.15, 50,000 events, radius 100 px), plus
+volleyball at 1,000 rps and small balls (radius 30 px, 5,000 and 20,000 events).  Methods:
+``fast`` (default estimator), ``paper`` (Adam, 1,500 iterations, 50k events; slow, so run on
+fewer sequences: ``--paper-seqs``), and the image baseline (two-frame registration after
+Tamaki et al.) at 60/120/240/480 fps on sharp rendered frames of the same ball; the speed
+ratio paper/fast is measured on the same sequences in this run.
 
-    python bench/spin_bench.py --quick          # a few minutes
-    python bench/spin_bench.py --rally          # replay-like windows only (r = 36 px, tracker velocity)
-    python bench/spin_bench.py --seqs 10 --paper-seqs 1 --json out.json
+Times are CPU time of the process on one core (OpenCV and BLAS held to one thread, as replay
+workers run), so the load of other processes on the machine does not skew them.
+
+    python bench/spin_bench.py --seeds 4 --held-out 2 --cache /tmp/spin-cases --jobs 2
+    python bench/spin_bench.py --paper --quick          # a few minutes
+    python bench/spin_bench.py --rally                  # replay-like windows (r = 36 px, tracker velocity)
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # BLAS worker threads only slow these small problems down
 
 import argparse  # noqa: E402
+import inspect  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 
@@ -120,23 +126,151 @@ def bench_rally(seed: int) -> None:
               f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
 
 
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+
+
+def run_case(job) -> dict:
+    """Estimate one matrix case; the record of its errors, confidence, uncertainty and CPU time."""
+    import spin_cases
+
+    row, seed, cache = job
+    events, truth = spin_cases.make_case(row, seed, cache)
+    rec = {"row": list(row), "seed": seed, "held_out": seed >= spin_cases.HELD_OUT_SEED0,
+           "n_events": int(truth["n_events"]), "span_us": int(truth["span_us"]), "radius_px": truth["radius_px"],
+           "off_axis_deg": truth["off_axis_deg"]}
+    kw = dict(velocity=truth["velocity_px_s"] if row[2] == "translating" else (0.0, 0.0),
+              sensor_size=(spin_cases.WIDTH, spin_cases.HEIGHT), t0_us=int(events["t"][0]) if len(events) else None)
+    if row[3] == "perspective" and "camera" in inspect.signature(spin.estimate_spin).parameters:
+        kw.update(camera=spin_cases.camera(), circle="projected")
+    t = time.process_time()
+    try:
+        est = spin.estimate_spin(events, truth["center"], truth["radius_px"], **kw)
+    except spin.SpinInputError as exc:
+        rec.update(error=str(exc), ms=1e3 * (time.process_time() - t))
+        return rec
+    rec["ms"] = 1e3 * (time.process_time() - t)
+    rec["axis_deg"], rec["rps_pct"] = errors(est.axis, est.omega_rad_s, truth)
+    rec["confidence"] = float(est.confidence)
+    for name in ("axis_sigma_deg", "rps_sigma_pct"):
+        if hasattr(est, name):
+            rec[name] = float(getattr(est, name))
+    return rec
+
+
+def _ok(r: dict) -> bool:
+    return "error" not in r and r["axis_deg"] < 5.0 and r["rps_pct"] < 5.0
+
+
+def print_matrix(records: list[dict], title: str) -> None:
+    """Per-row table, totals against the goals, reliability table and uncertainty coverage."""
+    print(f"\n== {title}: {len(records)} windows ==")
+    print(f"{'row':44s} {'n':>3s} {'ax med':>6s} {'ax mean':>7s} {'rps% med':>8s} {'rps% mean':>9s} "
+          f"{'succ%':>6s} {'trust':>5s} {'c.fail':>6s} {'none':>4s} {'ms':>5s}")
+    by_row: dict[tuple, list[dict]] = {}
+    for r in records:
+        by_row.setdefault(tuple(r["row"]), []).append(r)
+    for row, rs in by_row.items():
+        done = [r for r in rs if "error" not in r]
+        a = np.array([r["axis_deg"] for r in done]) if done else np.array([np.nan])
+        o = np.array([r["rps_pct"] for r in done]) if done else np.array([np.nan])
+        ok = np.array([_ok(r) for r in rs])
+        trusted = np.array(["error" not in r and r["confidence"] >= 0.5 for r in rs])
+        name = f"{row[0]} {row[1]}rps {row[2]} {row[3][:5]} {row[4]}"
+        print(f"{name:44s} {len(rs):3d} {np.median(a):6.2f} {np.mean(a):7.2f} {np.median(o):8.2f} {np.mean(o):9.2f} "
+              f"{100 * ok.mean():6.1f} {trusted.sum():5d} {(trusted & ~ok).sum():6d} {len(rs) - len(done):4d} "
+              f"{np.mean([r['ms'] for r in rs]):5.0f}", flush=True)
+    ok = np.array([_ok(r) for r in records])
+    conf = np.array([r.get("confidence", 0.0) for r in records])
+    trusted = conf >= 0.5
+    n = len(records)
+    print(f"all: success {100 * ok.mean():.1f} % (goal >= 95 %), trusted {trusted.sum()} of {n}, "
+          f"right among trusted {100 * ok[trusted].mean() if trusted.any() else float('nan'):.1f} % (goal >= 99 %), "
+          f"confident failures {(trusted & ~ok).sum()} = {100 * (trusted & ~ok).mean():.2f} % of windows "
+          f"(goal <= 0.5 %), ms per estimate mean {np.mean([r['ms'] for r in records]):.0f} "
+          f"median {np.median([r['ms'] for r in records]):.0f}")
+    print("reliability: confidence bin -> windows, right (5 deg / 5 %), median axis error, median rps error")
+    for lo, hi in ((0.0, 0.1), (0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.01)):
+        sel = [r for r in records if "error" not in r and lo <= r["confidence"] < hi]
+        if sel:
+            print(f"  [{lo:.1f}, {min(hi, 1.0):.1f}{']' if hi > 1 else ')'}: {len(sel):5d} windows, right "
+                  f"{100 * np.mean([_ok(r) for r in sel]):5.1f} %, axis {np.median([r['axis_deg'] for r in sel]):6.2f} "
+                  f"deg, rps {np.median([r['rps_pct'] for r in sel]):6.2f} %")
+    print(f"  no estimate (SpinInputError): {sum('error' in r for r in records)} windows")
+    with_sigma = [r for r in records if "error" not in r and "axis_sigma_deg" in r and r["confidence"] >= 0.5]
+    if with_sigma:
+        ax = np.mean([r["axis_deg"] <= 2 * r["axis_sigma_deg"] for r in with_sigma])
+        om = np.mean([r["rps_pct"] <= 2 * r["rps_sigma_pct"] for r in with_sigma])
+        print(f"uncertainty (trusted windows): error within 2 sigma for axis {100 * ax:.1f} %, rps {100 * om:.1f} % "
+              f"(a Gaussian: 95 %); median sigma {np.median([r['axis_sigma_deg'] for r in with_sigma]):.2f} deg, "
+              f"{np.median([r['rps_sigma_pct'] for r in with_sigma]):.2f} %")
+
+
+def bench_matrix(args) -> None:
+    """The courtside matrix on the tuning and the held-out seeds."""
+    import spin_cases
+
+    pick = dict(textures=args.textures.split(",") if args.textures else spin_cases.TEXTURES,
+                rates=[int(r) for r in args.rates.split(",")] if args.rates else spin_cases.RATES_RPS,
+                motions=args.motions.split(",") if args.motions else spin_cases.MOTIONS,
+                lenses=args.lenses.split(",") if args.lenses else spin_cases.LENSES,
+                sensors=args.sensors.split(",") if args.sensors else spin_cases.SENSORS)
+    rows = spin_cases.rows(**pick)
+    seeds = list(range(args.seeds)) + list(range(spin_cases.HELD_OUT_SEED0, spin_cases.HELD_OUT_SEED0 + args.held_out))
+    jobs = [(row, seed, args.cache) for row in rows for seed in seeds]
+    print(f"{len(rows)} rows x {len(seeds)} seeds = {len(jobs)} windows", flush=True)
+    if args.jobs > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(args.jobs, initializer=_init_worker) as pool:
+            records = pool.map(run_case, jobs, chunksize=1)
+    else:
+        records = [run_case(j) for j in jobs]
+    for held, title in ((False, "tuning seeds"), (True, "held-out seeds")):
+        part = [r for r in records if r["held_out"] == held]
+        if part:
+            print_matrix(part, title)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"windows": records}, fh, indent=0)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small subset (a few minutes)")
-    ap.add_argument("--seqs", type=int, default=None, help="sequences per row for the fast method")
-    ap.add_argument("--paper-seqs", type=int, default=None, help="sequences per row for the paper method")
-    ap.add_argument("--paper-rows", default=None, help="comma-separated row indices for the paper method")
-    ap.add_argument("--image-seqs", type=int, default=None, help="sequences per row for the image baseline")
-    ap.add_argument("--fps", default="60,120,240,480")
-    ap.add_argument("--rows", default=None, help="comma-separated row indices (default: all)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", default=None, help="write the results here")
+    ap.add_argument("--paper", action="store_true", help="the seed paper's protocol instead of the matrix")
     ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
+    m = ap.add_argument_group("matrix")
+    m.add_argument("--seeds", type=int, default=3, help="tuning seeds per row (0, 1, ...)")
+    m.add_argument("--held-out", type=int, default=2, help="held-out seeds per row (1000, 1001, ...)")
+    m.add_argument("--cache", default=None, help="directory caching the simulated cases")
+    m.add_argument("--jobs", type=int, default=1, help="worker processes (each on one core)")
+    m.add_argument("--textures", default=None, help="comma-separated subset (default: all)")
+    m.add_argument("--rates", default=None, help="comma-separated rps subset")
+    m.add_argument("--motions", default=None, help="still,translating")
+    m.add_argument("--lenses", default=None, help="orthographic,perspective")
+    m.add_argument("--sensors", default=None, help="ideal,realistic")
+    p = ap.add_argument_group("paper protocol (--paper)")
+    p.add_argument("--quick", action="store_true", help="small subset (a few minutes)")
+    p.add_argument("--seqs", type=int, default=None, help="sequences per row for the fast method")
+    p.add_argument("--paper-seqs", type=int, default=None, help="sequences per row for the paper method")
+    p.add_argument("--paper-rows", default=None, help="comma-separated row indices for the paper method")
+    p.add_argument("--image-seqs", type=int, default=None, help="sequences per row for the image baseline")
+    p.add_argument("--fps", default="60,120,240,480")
+    p.add_argument("--rows", default=None, help="comma-separated row indices (default: all)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the paper and rally sequences")
+    ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)  # one core: times are CPU time of this process
     if args.rally:
         bench_rally(args.seed)
-        return
+    elif args.paper:
+        bench_paper(args)
+    else:
+        bench_matrix(args)
+
+
+def bench_paper(args) -> None:
+    """The seed paper's protocol: fast, paper and image-baseline methods, speed ratio paper/fast."""
     rows = QUICK_ROWS if args.quick else PAPER_ROWS + EXTRA_ROWS
     if args.rows:
         rows = [rows[int(i)] for i in args.rows.split(",")]

@@ -50,6 +50,10 @@ class SpinEstimate:
         events come in bursts (a strobe: aliased spins align them equally well).
     method : str
         ``"fast"`` or ``"paper"``.
+    axis_sigma_deg, rps_sigma_pct : float
+        Uncertainty (1 sigma) of the axis (deg) and of the rate (% of ``rps``), from the
+        spread of the estimates on the two halves of the events (``spin.fast.estimate_fast``);
+        NaN for ``method="paper"``.
     """
 
     axis: np.ndarray
@@ -63,6 +67,8 @@ class SpinEstimate:
     converged: bool
     confidence: float
     method: str
+    axis_sigma_deg: float = float("nan")
+    rps_sigma_pct: float = float("nan")
 
 
 def _check_events(events) -> np.ndarray:
@@ -246,6 +252,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
                           dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS))
         res = estimate_fast(ev, v0, velocity_known=known, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
+        sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct}
     else:
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
                           max_events=opts.pop("max_events", PAPER_EVENTS), min_events=min_events,
@@ -260,12 +267,13 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         # the paper gives no quality figure: use the contrast gain over no rotation
         still = contrast(ev, np.zeros(3), v, IweGeometry(ev.radius_px), gradient=False)
         confidence = float(np.clip((1.0 - still / max(value, 1e-30)) / 0.3, 0.0, 1.0))
+        sigmas = {}
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
     return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
                         t_start_us=int(t_sel[0]), t_end_us=int(t_sel[-1]) + 1, n_events=len(t_sel),
                         contrast=float(value), converged=bool(converged), confidence=float(confidence),
-                        method=method)
+                        method=method, **sigmas)
 
 
 def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bool = True,
