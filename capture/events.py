@@ -117,9 +117,10 @@ TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
 SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
     "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
-    "confidence": ("<f4", ())}
+    "confidence": ("<f4", ()), "axis_sigma_deg": ("<f4", ()), "rps_sigma_pct": ("<f4", ())}
 """Spin estimates: window µs (end exclusive), unit axis in the camera frame, rad/s, rev/s,
-centre velocity px/s, confidence 0..1."""
+centre velocity px/s, confidence 0..1, uncertainty (1 sigma) of the axis in degrees and of the
+rate in % (NaN where not measured, e.g. sessions written before these columns existed)."""
 
 
 def empty_table(columns: Mapping[str, tuple[str, tuple]], n: int = 0) -> dict[str, np.ndarray]:
@@ -149,17 +150,24 @@ def spin_table(spin) -> dict[str, np.ndarray]:
         A mapping of columns, one estimate, or estimates: any object with the attributes
         named in :data:`SPIN_COLUMNS` (e.g. ``spin.SpinEstimate``).
 
+    The uncertainty columns (``axis_sigma_deg``, ``rps_sigma_pct``) may be missing: they are
+    then NaN (not measured).
+
     Raises
     ------
     KeyError
-        A column is missing.
+        A column other than the uncertainties is missing.
     """
+    optional = ("axis_sigma_deg", "rps_sigma_pct")
     if isinstance(spin, Mapping):
-        rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS}
+        rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS if k in spin or k not in optional}
     else:
         items = [spin] if hasattr(spin, "axis") else list(spin)
-        rows = {k: [getattr(s, k) for s in items] for k in SPIN_COLUMNS}
+        rows = {k: [getattr(s, k) for s in items] for k in SPIN_COLUMNS
+                if k not in optional or all(hasattr(s, k) for s in items)}
     n = len(rows["t_start_us"])
+    for k in optional:
+        rows.setdefault(k, np.full(n, np.nan))
     return {k: np.asarray(rows[k], dtype=dtype).reshape(n, *shape) for k, (dtype, shape) in SPIN_COLUMNS.items()}
 
 

@@ -154,7 +154,8 @@ def print_truth_comparison(analysis: ReplayResult, truth: dict) -> None:
     print(f"True spin:      {truth['rps']:7.1f} rps, axis ({', '.join(f'{v:+.3f}' for v in truth['axis'])})")
     if s["n_confident"]:
         print(f"Estimated spin: {s['rps']:7.1f} rps, axis ({', '.join(f'{v:+.3f}' for v in s['axis'])})  "
-              f"median of {s['n_confident']} confident windows of {s['n_windows']}")
+              f"median of {s['n_confident']} confident windows of {s['n_windows']} "
+              f"(each ±{s['rps_sigma_pct']:.1f} %, ±{s['axis_sigma_deg']:.1f} deg, 1 sigma)")
         print(f"Error:          {s['rps_error_pct']:.2f} % in rps, {s['axis_error_deg']:.2f} deg in axis")
     else:
         print(f"Estimated spin: no confident estimate in {s['n_windows']} windows")

@@ -35,7 +35,7 @@ import zarr
 from zarr.codecs import BloscCodec
 from zarr.codecs.numcodecs import Delta
 
-from capture.events import EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table
+from capture.events import EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table, spin_table
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
@@ -235,11 +235,11 @@ class SessionWriter:
 
     def append_spin(self, spin) -> None:
         """Append spin-estimate rows (mapping or object with the ``capture.events.SPIN_COLUMNS``)."""
-        self._table("spin", SPIN_COLUMNS).append(_columns_of(spin, SPIN_COLUMNS))
+        self._table("spin", SPIN_COLUMNS).append(spin_table(spin))
 
     def write_spin(self, spin) -> None:
         """Replace all spin estimates."""
-        self._table("spin", SPIN_COLUMNS).replace(_columns_of(spin, SPIN_COLUMNS))
+        self._table("spin", SPIN_COLUMNS).replace(spin_table(spin))
 
     def append_frames(self, t_us, images: np.ndarray | None = None) -> None:
         """Append frame timestamps (µs, event clock) and, optionally, the frames (N, H, W[, 3]) uint8."""
@@ -485,8 +485,14 @@ class Session:
                 "video": str(self.path / video) if video else None}
 
     def _table(self, name: str, columns) -> dict[str, np.ndarray]:
-        empty = empty_table(columns)
-        return {k: (v if v is not None else empty[k]) for k, v in self._read(name, columns).items()}
+        """The table's columns; a column the store lacks (written by an older version) reads as NaN
+        (floats) or zeros, one per row."""
+        n = self._n(name)
+        full = empty_table(columns, n)
+        for k, (dtype, _) in columns.items():
+            if np.dtype(dtype).kind == "f":
+                full[k][...] = np.nan
+        return {k: (v if v is not None else full[k]) for k, v in self._read(name, columns).items()}
 
 
 def open_session(path) -> Session:

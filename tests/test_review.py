@@ -54,7 +54,8 @@ def _track() -> Track:
 SPIN = {"t_start_us": np.array([10_000, 11_000, 15_000]), "t_end_us": np.array([11_000, 12_000, 16_000]),
         "axis": np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0.6, 0.8]]),
         "omega_rad_s": 2 * np.pi * np.array([10.0, 20.0, 30.5]), "rps": np.array([10.0, 20.0, 30.5]),
-        "velocity_px_s": np.zeros((3, 2)), "confidence": np.array([0.9, 0.5, 0.25], np.float32)}
+        "velocity_px_s": np.zeros((3, 2)), "confidence": np.array([0.9, 0.5, 0.25], np.float32),
+        "axis_sigma_deg": np.array([0.5, 1.5, 4.0], np.float32), "rps_sigma_pct": np.array([0.4, 2.0, 6.0], np.float32)}
 FRAME_T = np.array([10_500, 12_500, 14_000])
 
 
@@ -216,6 +217,8 @@ def test_spin_series_and_axis(written):
 
     np.testing.assert_allclose(series("/plots/rps"), SPIN["rps"])
     np.testing.assert_allclose(series("/plots/confidence"), SPIN["confidence"], rtol=1e-6)
+    np.testing.assert_allclose(series("/plots/uncertainty/rps_pct"), SPIN["rps_sigma_pct"], rtol=1e-6)
+    np.testing.assert_allclose(series("/plots/uncertainty/axis_deg"), SPIN["axis_sigma_deg"], rtol=1e-6)
     np.testing.assert_allclose(series("/plots/axis/azimuth_deg"), [90.0, 0.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(series("/plots/axis/elevation_deg"),
                                [0.0, 90.0, np.degrees(np.arcsin(-0.6))], atol=1e-9)
@@ -223,7 +226,7 @@ def test_spin_series_and_axis(written):
     for vec, axis in zip(vectors, SPIN["axis"]):
         np.testing.assert_allclose(vec / np.linalg.norm(vec), axis, atol=1e-6)
     labels = [v[0] for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:labels"])]
-    assert labels == ["10.0 rps", "20.0 rps", "30.5 rps"]
+    assert labels == ["10.0 rps ±0.4 %", "20.0 rps ±2.0 %", "30.5 rps ±6.0 %"]
 
 
 def test_frames_as_images_with_mapped_circle(written):

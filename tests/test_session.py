@@ -83,6 +83,8 @@ def test_tables_round_trip(tmp_path):
     sp = s.spin()
     assert sp["axis"].shape == (2, 3) and np.allclose(sp["axis"][1], [0, 1, 0])
     assert np.allclose(sp["rps"], [100, 200]) and sp["velocity_px_s"].shape == (2, 2)
+    # uncertainties not given read back as NaN (not measured), one per row
+    assert sp["rps_sigma_pct"].shape == (2,) and np.isnan(sp["rps_sigma_pct"]).all()
     fr = s.frames()
     assert list(fr["t_us"]) == [0, 16_667] and fr["image"].shape == (2, 48, 64, 3)
     # replay replaces the track in place
@@ -225,3 +227,17 @@ def test_reader_of_a_closed_session_sees_later_updates(tmp_path):
     w.write_track({k: v[:2] + 100 for k, v in track.items()})
     w.close()
     assert list(r.track()["t_us"]) == [100, 101]
+
+
+def test_spin_table_of_an_older_session_reads_missing_uncertainty_as_nan(tmp_path):
+    spin = {"t_start_us": [0, 1000, 2000], "t_end_us": [1000, 2000, 3000], "axis": [[0, 0, 1]] * 3,
+            "omega_rad_s": [628.3] * 3, "rps": [100.0] * 3, "velocity_px_s": [[0, 0]] * 3,
+            "confidence": [0.9] * 3, "axis_sigma_deg": [0.5] * 3, "rps_sigma_pct": [0.7] * 3}
+    with S.create_session(tmp_path / "s", width=64, height=48) as w:
+        w.write_spin(spin)
+    # a session written before the uncertainty columns existed has no such arrays
+    root = zarr.open_group(str(tmp_path / "s"), mode="r+", use_consolidated=False)
+    del root["spin"]["axis_sigma_deg"]
+    sp = S.open_session(tmp_path / "s").spin()
+    assert sp["axis_sigma_deg"].shape == (3,) and np.isnan(sp["axis_sigma_deg"]).all()
+    assert np.allclose(sp["rps_sigma_pct"], 0.7) and np.allclose(sp["rps"], 100.0)

@@ -72,7 +72,8 @@ def _axis_error_deg(a, b) -> float:
 
 
 def spin_summary(spin: dict, truth: dict, min_confidence: float = 0.5) -> dict:
-    """Median estimate over confident spin windows, with its errors against the truth."""
+    """Median estimate over confident spin windows, with its errors against the truth and the windows'
+    median uncertainty (1 sigma, ``rps_sigma_pct`` %, ``axis_sigma_deg`` deg)."""
     ok = np.asarray(spin["confidence"]) >= min_confidence
     if not ok.any():
         return {"n_windows": len(spin["rps"]), "n_confident": 0}
@@ -81,4 +82,6 @@ def spin_summary(spin: dict, truth: dict, min_confidence: float = 0.5) -> dict:
     rps = float(np.median(np.asarray(spin["rps"])[ok]))
     return {"n_windows": len(spin["rps"]), "n_confident": int(ok.sum()), "rps": rps, "axis": axis,
             "axis_error_deg": _axis_error_deg(axis, truth["axis"]),
-            "rps_error_pct": 100.0 * abs(rps - truth["rps"]) / truth["rps"]}
+            "rps_error_pct": 100.0 * abs(rps - truth["rps"]) / truth["rps"],
+            "rps_sigma_pct": float(np.nanmedian(np.asarray(spin["rps_sigma_pct"], dtype=float)[ok])),
+            "axis_sigma_deg": float(np.nanmedian(np.asarray(spin["axis_sigma_deg"], dtype=float)[ok]))}

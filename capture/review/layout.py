@@ -18,6 +18,8 @@ Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.re
     plots/axis/azimuth_deg       Scalars: axis azimuth, see :func:`axis_angles_deg`
     plots/axis/elevation_deg     Scalars: axis elevation
     plots/confidence             Scalars: spin confidence 0..1
+    plots/uncertainty/rps_pct    Scalars: spin-rate uncertainty (1 sigma), %
+    plots/uncertainty/axis_deg   Scalars: spin-axis uncertainty (1 sigma), deg
     plots/event_rate/events_ev_s Scalars: event rate per slice (before decimation), ev/s
     plots/status/<name>          Scalars: live status numbers (drops, ...)
     log                          TextLog: notes (decimation, skipped batches, ...)
@@ -60,6 +62,8 @@ PLOT_RPS = "plots/rps"
 PLOT_AZIMUTH = "plots/axis/azimuth_deg"
 PLOT_ELEVATION = "plots/axis/elevation_deg"
 PLOT_CONFIDENCE = "plots/confidence"
+PLOT_RPS_SIGMA = "plots/uncertainty/rps_pct"
+PLOT_AXIS_SIGMA = "plots/uncertainty/axis_deg"
 PLOT_EVENT_RATE = "plots/event_rate/events_ev_s"
 PLOT_STATUS = "plots/status"
 TEXT_LOG = "log"
@@ -148,6 +152,7 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
         rrb.TimeSeriesView(origin=PLOT_RPS, name="Spin rate (rps)"),
         rrb.TimeSeriesView(origin="plots/axis", name="Axis angles (deg)"),
         rrb.TimeSeriesView(origin=PLOT_CONFIDENCE, name="Confidence"),
+        rrb.TimeSeriesView(origin="plots/uncertainty", name="Uncertainty (1 sigma: %, deg)"),
         rrb.TimeSeriesView(origin="plots", contents=rate_contents,
                            name="Event rate (ev/s)" + (" and status" if status else "")),
         rrb.TextLogView(origin=TEXT_LOG, name="Log"),

@@ -19,7 +19,8 @@ from capture.events import EVENT_DTYPE, Track, concatenate, spin_table
 from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AXIS, BALL3D_SPHERE, BALL_COLOR,
                                    EVENTS_BALL, EVENTS_OFF, EVENTS_ON, EVENTS_SENSOR, EVENTS_SPIN_AXIS,
                                    FRAMES_BALL, FRAMES_IMAGE, OFF_COLOR, ON_COLOR, PIXEL_OFFSET, PLOT_AZIMUTH,
-                                   PLOT_CONFIDENCE, PLOT_ELEVATION, PLOT_EVENT_RATE, PLOT_RPS, PLOT_STATUS,
+                                   PLOT_AXIS_SIGMA, PLOT_CONFIDENCE, PLOT_ELEVATION, PLOT_EVENT_RATE, PLOT_RPS,
+                                   PLOT_RPS_SIGMA, PLOT_STATUS,
                                    TEXT_LOG, TIMELINE, axis_angles_deg, time_column)
 
 
@@ -111,6 +112,7 @@ class ReviewLogger:
         rec.log(BALL3D_AXIS, rr.Arrows3D.from_fields(colors=[AXIS_COLOR], radii=[0.03]), static=True)
         for path, name in ((PLOT_RPS, "rps"), (PLOT_AZIMUTH, "azimuth (deg)"),
                            (PLOT_ELEVATION, "elevation (deg)"), (PLOT_CONFIDENCE, "confidence"),
+                           (PLOT_RPS_SIGMA, "rps sigma (%)"), (PLOT_AXIS_SIGMA, "axis sigma (deg)"),
                            (PLOT_EVENT_RATE, "events (ev/s)")):
             rec.log(path, rr.SeriesLines(names=name), static=True)
 
@@ -239,9 +241,12 @@ class ReviewLogger:
         az, el = axis_angles_deg(axis)
         index = [time_column(t)]
         for path, values in ((PLOT_RPS, rps), (PLOT_AZIMUTH, az), (PLOT_ELEVATION, el),
-                             (PLOT_CONFIDENCE, cols["confidence"].astype(np.float64))):
+                             (PLOT_CONFIDENCE, cols["confidence"].astype(np.float64)),
+                             (PLOT_RPS_SIGMA, cols["rps_sigma_pct"].astype(np.float64)),
+                             (PLOT_AXIS_SIGMA, cols["axis_sigma_deg"].astype(np.float64))):
             self.rec.send_columns(path, indexes=index, columns=rr.Scalars.columns(scalars=values))
-        labels = [f"{v:.1f} rps" for v in rps]
+        labels = [f"{v:.1f} rps ±{s:.1f} %" if np.isfinite(s) else f"{v:.1f} rps"
+                  for v, s in zip(rps, cols["rps_sigma_pct"])]
         self.rec.send_columns(BALL3D_AXIS, indexes=index,
                               columns=rr.Arrows3D.columns(origins=-1.6 * axis, vectors=3.2 * axis, labels=labels))
         if track is not None and len(track):
