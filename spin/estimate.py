@@ -8,6 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from spin import lens
 from spin.fast import FAST_EVENTS, estimate_fast
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
@@ -97,14 +98,72 @@ def _jitter_px(n: int) -> np.ndarray:
     return table[:, :n] if n <= table.shape[1] else np.tile(table, (1, -(-n // table.shape[1])))[:, :n]
 
 
+def _check_circle(center, radius_px, sensor_size) -> tuple[float, float, float]:
+    """``(cx, cy, r)`` as floats, or :class:`SpinInputError` for a bad circle or one off the sensor."""
+    cx, cy = (float(c) for c in np.reshape(np.asarray(center, dtype=np.float64), 2))
+    r = float(radius_px)
+    if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r)) or r <= 2.0:
+        raise SpinInputError(f"circle: centre ({cx}, {cy}) and radius {r} px must be finite with radius > 2 px")
+    w, h = sensor_size if sensor_size is not None else (65536, 65536)
+    if cx + r < 0 or cy + r < 0 or cx - r > w - 1 or cy - r > h - 1:
+        raise SpinInputError(f"circle: centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px lies outside the sensor "
+                             f"{w}x{h}")
+    return cx, cy, r
+
+
+def _check_camera(camera, events, sensor_size) -> None:
+    """:class:`SpinInputError` unless ``camera`` is a usable pinhole camera of the events' sensor."""
+    k = np.asarray(getattr(camera, "K", None), dtype=np.float64)
+    dist = np.ravel(np.asarray(getattr(camera, "dist", ()), dtype=np.float64))
+    if k.shape != (3, 3) or not np.isfinite(k).all() or not np.isfinite(dist).all():
+        raise SpinInputError("camera: K must be a finite 3x3 matrix and dist finite")
+    if k[0, 0] <= 0 or k[1, 1] <= 0 or np.linalg.cond(k) > 1e12:
+        raise SpinInputError(f"camera: K {k.tolist()} is not invertible with positive focal lengths")
+    if len(dist) not in (0, 4, 5, 8, 12, 14):
+        raise SpinInputError(f"camera: {len(dist)} distortion coefficients (OpenCV takes 4, 5, 8, 12 or 14)")
+    size = (int(camera.width), int(camera.height))
+    if min(size) <= 0:
+        raise SpinInputError(f"camera: size {size[0]}x{size[1]} px must be positive")
+    if sensor_size is not None and tuple(int(v) for v in sensor_size) != size:
+        raise SpinInputError(f"camera: size {size[0]}x{size[1]} px differs from the sensor size "
+                             f"{sensor_size[0]}x{sensor_size[1]}")
+    if len(events) and (int(events["x"].max()) >= size[0] or int(events["y"].max()) >= size[1]):
+        raise SpinInputError(f"camera: events reach pixel ({int(events['x'].max())}, {int(events['y'].max())}), "
+                             f"outside the camera's {size[0]}x{size[1]} px")
+
+
+def _keep(idx: np.ndarray, max_events: int | None, min_events: int, thin_to: int | None,
+          circle: tuple[float, float, float]) -> np.ndarray:
+    """The selected events ``idx`` (time order) after ``max_events`` and ``thin_to``, checked for ``min_events``."""
+    if len(idx) == 0:
+        raise SpinInputError("circle: no events inside the circle centre ({:.1f}, {:.1f}) radius {:.1f} px"
+                             .format(*circle))
+    if max_events is not None:
+        idx = idx[:max_events]
+    if len(idx) < min_events:
+        raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
+    if thin_to is not None and len(idx) > thin_to:
+        idx = idx[::-(-len(idx) // thin_to)]
+    return idx
+
+
 def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0, 0.0), rim_fraction: float = 1.0,
             max_events: int | None = None, min_events: int = 200, sensor_size=None,
-            dither: bool = False, thin_to: int | None = None) -> tuple[BallEvents, np.ndarray]:
+            dither: bool = False, thin_to: int | None = None,
+            view: lens.BallView | None = None) -> tuple[BallEvents, np.ndarray]:
     """Select the events inside the moving circle and express them for warping.
 
     Returns the :class:`BallEvents` (float32; ``t_ref`` at the middle of the
     selected events) and the selected events' times (int64 µs, (N,)).  Raises
     :class:`SpinInputError` naming the problem.
+
+    Without ``view`` (orthographic camera), the events' coordinates are pixels relative to
+    ``center`` and the radius is ``radius_px``.  With a :class:`spin.lens.BallView` (the ball
+    as a calibrated camera sees it, see :func:`spin.lens.ball_view`), they are the ball-frame
+    coordinates of :func:`spin.lens.ball_coordinates` (ball units, the ball's centre moving
+    with ``velocity_px_s`` in the image; give the estimator a zero velocity) and the radius is
+    ``view.radius``; the events kept are those whose rays meet the ball within
+    ``rim_fraction`` of the silhouette's radius in ball coordinates.
 
     With ``dither``, each event's position is spread uniformly over its pixel (a fixed
     pseudo-random draw, so results repeat): events sit on the integer pixel lattice,
@@ -116,14 +175,7 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     (the fewest k leaving at most ``thin_to``).
     """
     events = _check_events(events)
-    cx, cy = (float(c) for c in center)
-    r = float(radius_px)
-    if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r)) or r <= 2.0:
-        raise SpinInputError(f"circle: centre ({cx}, {cy}) and radius {r} px must be finite with radius > 2 px")
-    w, h = sensor_size if sensor_size is not None else (65536, 65536)
-    if cx + r < 0 or cy + r < 0 or cx - r > w - 1 or cy - r > h - 1:
-        raise SpinInputError(f"circle: centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px lies outside the sensor "
-                             f"{w}x{h}")
+    cx, cy, r = _check_circle(center, radius_px, sensor_size)
     if len(events) == 0:
         raise SpinInputError("events: empty array")
     if thin_to is not None and thin_to < 1:
@@ -133,6 +185,9 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
         order = np.argsort(t_us, kind="stable")
         events, t_us = events[order], t_us[order]
     t0 = int(t_us[0]) if t0_us is None else int(t0_us)
+    if view is not None:
+        return _prepare_view(events, t_us, t0, (cx, cy, r), view, velocity_px_s, rim_fraction, max_events,
+                             min_events, dither, thin_to)
     f32 = np.float32
     vx, vy = (f32(c) for c in velocity_px_s)
     # float32 throughout: exact to the microsecond for windows up to 16 s after t0
@@ -149,15 +204,7 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     dx += dy
     # dithered events may move by up to sqrt(0.5) px: select them so that they stay on the ball
     rim = min(rim_fraction * r, r - _JITTER_REACH_PX) if dither else rim_fraction * r
-    idx = np.flatnonzero(dx <= f32(rim * rim))
-    if len(idx) == 0:
-        raise SpinInputError(f"circle: no events inside the circle centre ({cx:.1f}, {cy:.1f}) radius {r:.1f} px")
-    if max_events is not None:
-        idx = idx[:max_events]
-    if len(idx) < min_events:
-        raise SpinInputError(f"events: only {len(idx)} events inside the circle, need at least {min_events}")
-    if thin_to is not None and len(idx) > thin_to:
-        idx = idx[::-(-len(idx) // thin_to)]
+    idx = _keep(np.flatnonzero(dx <= f32(rim * rim)), max_events, min_events, thin_to, (cx, cy, r))
     s = s[idx]
     x = x[idx]
     y = y[idx]
@@ -168,6 +215,42 @@ def prepare(events, center, radius_px: float, *, t0_us=None, velocity_px_s=(0.0,
     # gathers from plain arrays (a structured-array gather costs as much as all the rest)
     ball = BallEvents(x, y, s, f32(0.5) * (s[0] + s[-1]) - s,
                       2 * events["p"][idx].astype(f32) - 1, r)
+    return ball, t_us[idx]
+
+
+def _prepare_view(events, t_us, t0: int, circle: tuple[float, float, float], view: lens.BallView,
+                  velocity_px_s, rim_fraction: float, max_events, min_events: int, dither: bool,
+                  thin_to) -> tuple[BallEvents, np.ndarray]:
+    """:func:`prepare` for a ball seen through a camera (``view``): events in ball coordinates.
+
+    Events within the silhouette's reach (``view.reach_px`` plus a dithered event's reach) of
+    the moving circle's centre are candidates; with ``dither`` each is spread over its pixel
+    before it is mapped, and those mapped within ``rim_fraction`` of the silhouette are kept.
+    """
+    cx, cy, _ = circle
+    vx, vy = (float(c) for c in velocity_px_s)
+    s = (t_us - t0) * 1e-6
+    x = events["x"].astype(np.float64)  # plain arrays: gathers from the records cost more than the rest
+    y = events["y"].astype(np.float64)
+    dx = x - (cx + vx * s)
+    dy = y - (cy + vy * s)
+    reach = view.reach_px + _JITTER_REACH_PX
+    near = np.flatnonzero(dx * dx + dy * dy <= reach * reach)
+    uv = np.empty((len(near), 2))
+    uv[:, 0] = x[near]
+    uv[:, 1] = y[near]
+    if dither:
+        uv += _jitter_px(len(near)).T
+    xy, hit = lens.ball_coordinates(view, uv, s[near], (vx, vy))
+    rim = rim_fraction * view.rim_radius
+    pos = _keep(np.flatnonzero(hit & (xy[0] * xy[0] + xy[1] * xy[1] <= rim * rim)), max_events, min_events,
+                thin_to, circle)
+    idx = near[pos]
+    f32 = np.float32
+    s = (t_us[idx] - t0).astype(f32)
+    s *= f32(1e-6)
+    ball = BallEvents(xy[0, pos].astype(f32), xy[1, pos].astype(f32), s, f32(0.5) * (s[0] + s[-1]) - s,
+                      2 * events["p"][idx].astype(f32) - 1, view.radius)
     return ball, t_us[idx]
 
 
@@ -202,7 +285,8 @@ def velocity_from_centroids(events, center, radius_px: float, *, t0_us=None, n_s
 
 
 def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: str = "fast",
-                  sensor_size=None, min_events: int = 200, **opts) -> SpinEstimate:
+                  sensor_size=None, min_events: int = 200, camera=None, circle: str = "detected",
+                  **opts) -> SpinEstimate:
     """Estimate the ball's spin from its events by contrast maximisation.
 
     Parameters
@@ -210,9 +294,11 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
     events : ndarray of EVENT_DTYPE
         Time-sorted events (others are ignored: only those inside the moving circle are used).
     center : (float, float)
-        Ball centre in px at ``t0_us``.
+        Centre of the ball's circle in the image at ``t0_us``, px.
     radius : float
-        Ball radius in px.
+        Radius of the ball's circle, px.  Without ``camera`` the image is taken as an
+        orthographic view of the ball, whose silhouette is this circle.  With ``camera``, see
+        ``circle``.
     t0_us : int, optional
         Time of ``center``, µs; default the first event's time.
     velocity : (float, float), optional
@@ -224,50 +310,92 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         ``"fast"`` (default): coarse search + coarse-to-fine BFGS (:mod:`spin.fast`).
         ``"paper"``: the seed paper's joint Adam ascent (:mod:`spin.paper`).
     sensor_size : (int, int), optional
-        ``(width, height)`` to check the circle against.
+        ``(width, height)`` to check the circle against (default: the camera's size, if any).
     min_events : int
         Fewest events inside the circle accepted.
+    camera : calib.Intrinsics, optional
+        The event camera's intrinsics (pinhole ``K`` and OpenCV distortion ``dist``, px): the
+        ball is then seen in perspective, through the distorting lens (:mod:`spin.lens`),
+        which matters for balls off the optical axis.  ``None``: orthographic camera.
+    circle : {"detected", "projected"}
+        With ``camera``, what ``(center, radius)`` is.  ``"detected"`` (default): the circle
+        fitted to the ball's silhouette in the (distorted) image, as the detector and the
+        track report it; off the optical axis the silhouette is an ellipse, and the circle is
+        turned into the ball's viewing cone (:func:`spin.lens.viewing_cone`).
+        ``"projected"``: ``center`` is the image of the ball's centre and
+        ``radius = f tan(alpha)`` (``f`` the camera's mean focal length in px, ``alpha`` the
+        ball's angular radius), as ``sim`` reports its pinhole truth.
     **opts
         Passed to :func:`spin.fast.estimate_fast` or :func:`spin.paper.estimate_paper`
         (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``; ``fast``
         takes ``thin_to``, default ``spin.fast.FAST_EVENTS`` = 24,000: more events inside the
-        circle are thinned evenly to at most that many).
+        circle are thinned evenly to at most that many).  Angular velocities among them
+        (``prior_w_rad_s``, ``init_w_rad_s``) are in the camera frame.
+
+    Returns
+    -------
+    SpinEstimate
+        Axis in the camera frame; ``velocity_px_s`` is the image velocity of the circle's centre.
 
     Raises
     ------
     SpinInputError
-        Bad events, circle outside the sensor, no or too few events inside the circle.
+        Bad events, non-finite numbers, circle outside the sensor, no or too few events inside
+        the circle, a camera whose ``K`` is not invertible or whose size does not match the
+        events or ``sensor_size``.
     """
     if method not in ("fast", "paper"):
         raise SpinInputError(f"method: {method!r} is not 'fast' or 'paper'")
+    if t0_us is not None and not np.isfinite(t0_us):
+        raise SpinInputError(f"t0_us: {t0_us} is not finite")
     known = velocity is not None
     if velocity is None:
         _check_events(events)
         v0 = velocity_from_centroids(events, center, radius, t0_us=t0_us) if len(events) else np.zeros(2)
     else:
         v0 = np.asarray(velocity, dtype=np.float64).reshape(2)
+        if not np.isfinite(v0).all():
+            raise SpinInputError(f"velocity: ({v0[0]}, {v0[1]}) px/s is not finite")
+    view = None
+    v_fit = v0  # the velocity the estimator starts from: px/s, or ball units/s with a camera
+    if camera is not None:
+        _check_camera(camera, _check_events(events), sensor_size)
+        sensor_size = (int(camera.width), int(camera.height))
+        if circle not in lens.CIRCLES:
+            raise SpinInputError(f"circle: {circle!r} is not one of {lens.CIRCLES}")
+        try:
+            view = lens.ball_view(camera, _check_circle(center, radius, sensor_size)[:2], float(radius), circle)
+        except ValueError as exc:
+            raise SpinInputError(str(exc)) from None
+        v_fit = np.zeros(2)  # the ball's centre follows v0 in ball coordinates
+        for name in ("prior_w_rad_s", "init_w_rad_s"):
+            if opts.get(name) is not None:
+                opts[name] = view.to_ball(opts[name])
     if method == "fast":
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
                           max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size,
-                          dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS))
-        res = estimate_fast(ev, v0, velocity_known=known, **opts)
+                          dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS), view=view)
+        res = estimate_fast(ev, v_fit, velocity_known=known, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
         sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct}
     else:
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
                           max_events=opts.pop("max_events", PAPER_EVENTS), min_events=min_events,
-                          sensor_size=sensor_size)
+                          sensor_size=sensor_size, view=view)
         w0 = opts.pop("init_w_rad_s", None)
         if w0 is None:
-            omegas, dirs, scores = coarse_search(ev, v0, omega_min_rad_s=2 * np.pi * 3.0,
+            omegas, dirs, scores = coarse_search(ev, v_fit, omega_min_rad_s=2 * np.pi * 3.0,
                                                  omega_max_rad_s=2 * np.pi * 1500.0)
             w0 = distinct_candidates(omegas, dirs, scores, 1)[0]
-        res = estimate_paper(ev, w0, v0, **opts)
+        res = estimate_paper(ev, w0, v_fit, **opts)
         w, v, value, converged = res.w_rad_s, res.v_px_s, res.contrast, res.converged
         # the paper gives no quality figure: use the contrast gain over no rotation
         still = contrast(ev, np.zeros(3), v, IweGeometry(ev.radius_px), gradient=False)
         confidence = float(np.clip((1.0 - still / max(value, 1e-30)) / 0.3, 0.0, 1.0))
         sigmas = {}
+    if view is not None:
+        w = view.to_camera(w)
+        v = v0 + view.to_px_s(v)
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
     return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
@@ -277,7 +405,8 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
 
 
 def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bool = True,
-                     warm_start: bool = True, **opts) -> list[SpinEstimate]:
+                     warm_start: bool = True, camera=None, circle: str = "detected",
+                     **opts) -> list[SpinEstimate]:
     """One estimate per :class:`detect.track.SpinWindow` (centre at the window start, the track's velocity).
 
     Windows whose events cannot give an estimate (:class:`SpinInputError`) are
@@ -286,6 +415,9 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
     >= 0.5) of the same flight within ``WARM_GAP_US`` starts from it: it joins the
     candidates and the coarse search keeps to speeds within a factor 2.2 of it
     (``spin.fast.estimate_fast``'s ``prior_w_rad_s``); spin barely changes in flight.
+    ``camera`` (``calib.Intrinsics`` of the event camera, or ``None``: orthographic) and
+    ``circle`` (the track's circles are the detector's: ``"detected"``) go to
+    :func:`estimate_spin`, as do the other options.
     """
     out = []
     previous = None  # (flight, window end µs, estimate) of the last estimate
@@ -296,7 +428,7 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
             kw.setdefault("prior_w_rad_s", previous[2].axis * previous[2].omega_rad_s)
         try:
             est = estimate_spin(win.events, win.center, win.radius_px, t0_us=win.t_start_us,
-                                velocity=win.velocity_px_s, method=method, **kw)
+                                velocity=win.velocity_px_s, method=method, camera=camera, circle=circle, **kw)
         except SpinInputError:
             if not skip_errors:
                 raise

@@ -80,3 +80,63 @@ def test_long_windows_are_thinned_evenly_for_the_fast_method():
     assert len(ball) == 750 and t_sel[-1] <= ev["t"][1499]
     with pytest.raises(spin.SpinInputError, match="thin_to"):
         prepare(ev, (100.0, 80.0), 33.0, thin_to=0)
+
+
+def test_non_finite_numbers():
+    ev = _events()
+    with pytest.raises(spin.SpinInputError, match="circle: .* must be finite"):
+        spin.estimate_spin(ev, (np.nan, 80), 30)
+    with pytest.raises(spin.SpinInputError, match="circle: .* must be finite"):
+        spin.estimate_spin(ev, (100, 80), np.inf, velocity=(0.0, 0.0))
+    with pytest.raises(spin.SpinInputError, match="velocity: .* not finite"):
+        spin.estimate_spin(ev, (100, 80), 30, velocity=(np.nan, 0.0))
+    with pytest.raises(spin.SpinInputError, match="t0_us: .* not finite"):
+        spin.estimate_spin(ev, (100, 80), 30, t0_us=np.nan)
+
+
+def _camera(width=640, height=480, K=None, dist=None):
+    from calib.intrinsics import Intrinsics
+
+    K = np.array([[300.0, 0.0, 319.5], [0.0, 300.0, 239.5], [0.0, 0.0, 1.0]]) if K is None else np.asarray(K, float)
+    return Intrinsics(K, np.zeros(5) if dist is None else np.asarray(dist, float), width, height)
+
+
+def test_camera_that_does_not_fit_the_events():
+    ev = _events()
+    with pytest.raises(spin.SpinInputError, match=r"events reach pixel .* outside the camera's 120x480 px"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(width=120))
+    with pytest.raises(spin.SpinInputError, match="camera: size 640x480 px differs from the sensor size 1280x720"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(), sensor_size=(1280, 720))
+    with pytest.raises(spin.SpinInputError, match="not invertible"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(K=[[300, 0, 0], [600, 0, 0], [0, 0, 1]]))
+    with pytest.raises(spin.SpinInputError, match="not invertible"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(K=np.zeros((3, 3))))
+    with pytest.raises(spin.SpinInputError, match="finite 3x3"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(K=[[np.nan, 0, 0], [0, 300, 0], [0, 0, 1]]))
+    with pytest.raises(spin.SpinInputError, match="3 distortion coefficients"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=_camera(dist=[0.1, 0.0, 0.0]))
+
+
+def test_bad_circle_with_a_camera():
+    ev = _events()
+    cam = _camera()
+    with pytest.raises(spin.SpinInputError, match="outside the sensor 640x480"):
+        spin.estimate_spin(ev, (700, 80), 30, camera=cam)
+    with pytest.raises(spin.SpinInputError, match="no events inside the circle"):
+        spin.estimate_spin(ev, (400, 300), 30, camera=cam)
+    with pytest.raises(spin.SpinInputError, match="only .* events inside the circle"):
+        spin.estimate_spin(_events(50), (100, 80), 30, camera=cam, min_events=200)
+    with pytest.raises(spin.SpinInputError, match="circle: 'fitted' is not one of"):
+        spin.estimate_spin(ev, (100, 80), 30, camera=cam, circle="fitted")
+    with pytest.raises(spin.SpinInputError, match="viewing cone reaches behind the camera"):
+        spin.estimate_spin(ev, (100, 80), 1000, camera=cam, circle="projected")
+
+
+def test_camera_errors_reach_estimate_windows():
+    from detect.track import SpinWindow
+
+    ev = _events()
+    win = SpinWindow(0, 2000, ev, (100.0, 80.0), 30.0, (0.0, 0.0), 0)
+    assert spin.estimate_windows([win], camera=_camera(width=120)) == []
+    with pytest.raises(spin.SpinInputError, match="outside the camera's"):
+        spin.estimate_windows([win], camera=_camera(width=120), skip_errors=False)

@@ -55,12 +55,17 @@ class LiveAnalysis:
         Batches waiting before new ones are skipped.
     keep_us : int
         Sensor time of recent events kept for spin windows (the tracker reports with a delay), µs.
+    camera : calib.Intrinsics, optional
+        The event camera's intrinsics (e.g. ``calib.stereo.CameraPair.event`` of the
+        calibration): spin then models the lens (``spin.estimate_spin``'s ``camera``); None:
+        orthographic.
     """
 
     def __init__(self, width: int, height: int, *, review=None, spin_every_us: int = 100_000,
                  window_us: int = 2000, min_events: int = 1500, max_events: int = 20000,
-                 max_queue: int = 16, keep_us: int = 200_000):
+                 max_queue: int = 16, keep_us: int = 200_000, camera=None):
         self.tracker = BallTracker(width, height)
+        self.camera = camera
         self.review = review
         self.state = LiveState()
         self.error: BaseException | None = None
@@ -126,7 +131,7 @@ class LiveAnalysis:
         t0 = int(last.t_us[0])
         events = time_slice(concatenate(b for b in self._recent if b["t"][-1] >= t0), t0, t0 + w_us)
         windows = list(spin_windows(events, last, **self._window))[:1]
-        est = spin.estimate_windows(windows)
+        est = spin.estimate_windows(windows, camera=self.camera)
         if est:
             self.state.spin = est[0]
             if self.review is not None:

@@ -25,6 +25,8 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 import spin
+from calib.intrinsics import Intrinsics
+from calib.store import load_calibration
 from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
@@ -93,11 +95,14 @@ class SpinPart:
     windows : list of detect.track.SpinWindow
         The windows, each with its ball events and the track's prior: exactly those that
         :func:`detect.track.spin_windows` cuts from all events with the whole track.
+    camera : calib.Intrinsics or None
+        The event camera's intrinsics (:func:`event_camera`), or None (orthographic spin model).
     """
 
     flight: int
     starts_us: np.ndarray
     windows: list
+    camera: Intrinsics | None = None
 
 
 REACH_MARGIN = (1.25, 8.0)
@@ -157,9 +162,10 @@ class _OpenFlight:
     ended: bool = False
 
 
-def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before_us, on_part) -> None:
+def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before_us, on_part,
+                    camera: Intrinsics | None) -> None:
     """Hand out the flight's parts whose windows have final track rows and all their events
-    (``assigned_before_us``: events before it are assigned; None: all)."""
+    (``assigned_before_us``: events before it are assigned; None: all), with the event ``camera``."""
     longest_us = max(options.window_us, options.max_window_us)
     while len(flight.final):
         limit = int(flight.final.t_us[-1])  # windows start on or before the last final row
@@ -184,7 +190,7 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
         windows = spin_windows(concatenate(pieces), rows.select(slice(i0, i1)), window_us=options.window_us,
                                min_events=options.min_events, max_events=options.max_events,
                                max_window_us=options.max_window_us, starts_us={fid: starts})
-        on_part(SpinPart(fid, starts, list(windows)))
+        on_part(SpinPart(fid, starts, list(windows), camera))
         flight.next_start_us = int(starts[-1]) + options.step_us
         near = []
         for chunk in flight.near:
@@ -226,6 +232,23 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
         yield t_us, img
 
 
+def event_camera(session) -> Intrinsics | None:
+    """The event camera's intrinsics from a session's calibration (attrs ``calibration``, see
+    ``calib.store.load_calibration``), or None when it has none.
+
+    Raises
+    ------
+    ValueError
+        When the calibrated camera's image size is not the session's sensor size.
+    """
+    cameras = load_calibration(session.attrs)[1]
+    camera = None if cameras is None else cameras.event
+    if camera is not None and (camera.width, camera.height) != (session.width, session.height):
+        raise ValueError(f"calibration: the event camera is calibrated for {camera.width}x{camera.height} px, "
+                         f"the session's sensor is {session.width}x{session.height} px")
+    return camera
+
+
 def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
                   on_part=None) -> Track:
     """Detect and track the ball over a session, streaming its events in batches.
@@ -237,7 +260,8 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     on_part : callable, optional
         Called with each :class:`SpinPart` as soon as its windows have final track rows and
         all their events have been read, while tracking goes on; every window of every
-        flight is in exactly one part, in order within a flight.
+        flight is in exactly one part, in order within a flight.  Parts carry the session's
+        event camera (:func:`event_camera`).
 
     Returns
     -------
@@ -250,6 +274,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     options = options or ReplayOptions()
     longest_us = max(options.window_us, options.max_window_us)
     s = open_session(session_path)
+    camera = event_camera(s)
     tracker = BallTracker(s.width, s.height, **options.tracker)
     frames = iter_session_frames(s, s.width, s.height)
     pending = next(frames, None)
@@ -297,7 +322,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
                 if fl.ended:
                     del flights[fid]
                 continue
-            _hand_out_parts(fl, options, assigned_before_us, on_part)
+            _hand_out_parts(fl, options, assigned_before_us, on_part, camera)
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
                 del flights[fid]
@@ -331,7 +356,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
 
 
 def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None = None,
-                starts_us=None) -> dict[str, np.ndarray]:
+                starts_us=None, camera: Intrinsics | None = None) -> dict[str, np.ndarray]:
     """Spin estimates of one ball flight (or of some of its windows).
 
     Parameters
@@ -343,6 +368,8 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
         The flight's track rows.
     starts_us : array_like of int, optional
         Start times of the windows to estimate, µs (default: all of the flight's).
+    camera : calib.Intrinsics, optional
+        The event camera's intrinsics (perspective spin model); None: orthographic.
 
     Returns
     -------
@@ -355,14 +382,14 @@ def spin_flight(events: np.ndarray, track: Track, options: ReplayOptions | None 
     windows = spin_windows(events, track, window_us=options.window_us, step_us=options.step_us,
                            min_events=options.min_events, max_events=options.max_events,
                            max_window_us=options.max_window_us, starts_us=starts_us)
-    return spin_table(spin.estimate_windows(windows, method=options.method))
+    return spin_table(spin.estimate_windows(windows, method=options.method, camera=camera))
 
 
 def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
     """Spin columns of one :class:`SpinPart` (the unit of spin work; plain data in and out).
     Its windows are estimated in order, each warm-started from the one before (see
-    ``spin.estimate_windows``)."""
-    return spin_table(spin.estimate_windows(part.windows, method=options.method))
+    ``spin.estimate_windows``), with the part's camera."""
+    return spin_table(spin.estimate_windows(part.windows, method=options.method, camera=part.camera))
 
 
 def _spin_unit(args) -> dict[str, np.ndarray]:
