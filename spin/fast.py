@@ -185,10 +185,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     refined on that half replaces it if it scores at least as high there (:func:`_half_answer`).  The confidence of the whole window's answer is scaled by
     ``clip((1.6 - worst) / 0.6, 0, 1)``, ``worst`` being the larger of the halves' deviations from
     it in units of (``CHECK_ANGLE_DEG``, ``log CHECK_RATIO``): 1 while both halves lie within
-    5 deg / 5 %, 0.5 at 1.3 times that, 0 beyond 1.6 times; and by ``clip(1.5 - spread, 0, 1)``,
-    ``spread`` the larger of the uncertainties in units of 2.5 deg / 2.5 % (a window whose 2 sigma
-    does not fit within 5 deg / 5 % is not trusted).  Halves of fewer than ``min_half_events``
-    events cannot check: the confidence is then halved.  The product is squared (see the code).
+    5 deg / 5 %, 0.5 at 1.3 times that, 0 beyond 1.6 times; and by ``clip(1.75 - spread, 0, 1)``,
+    ``spread`` the larger of the uncertainties in units of 2.5 deg / 2.5 %.  Halves of fewer than
+    ``min_half_events`` events cannot check: the confidence is then halved.  The product is
+    squared (see the code): a window is trusted (0.5) only while its 2 sigma stays within about
+    5 deg / 5 % and both halves within about 6 deg / 6 % of its answer.
 
     The uncertainty (1 sigma) is the halves' difference scaled by ``SIGMA_SCALE_AXIS`` /
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; ``axis_sigma_deg``
@@ -220,7 +221,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     # squared: on the benchmark's tuning seeds the product's windows between 0.5 and 0.7 were right only
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
     confidence = (whole.confidence * float(np.clip((1.6 - worst) / 0.6, 0.0, 1.0))
-                  * float(np.clip(1.5 - spread, 0.0, 1.0))) ** 2
+                  * float(np.clip(1.75 - spread, 0.0, 1.0))) ** 2
     return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma, check=worst)
 
 

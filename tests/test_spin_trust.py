@@ -55,7 +55,8 @@ def test_cross_check_scales_the_confidence(monkeypatch, ball, half_angles_deg, h
     assert calls == [len(ev), len(ev) // 2, len(ev) - len(ev) // 2]  # the whole, then each half
     np.testing.assert_allclose(res.w_rad_s, w_whole)
     if expect == "trusted":
-        assert res.confidence == 1.0
+        spread = max(res.axis_sigma_deg, res.rps_sigma_pct) / 2.5
+        assert res.confidence == pytest.approx(min(1.0, 1.75 - spread) ** 2) and res.confidence >= 0.5
         assert res.axis_sigma_deg == pytest.approx(max(fast.SIGMA_SCALE_AXIS * 2.0, fast.SIGMA_FLOOR_DEG), rel=1e-6)
         assert res.rps_sigma_pct == fast.SIGMA_FLOOR_PCT
     else:
