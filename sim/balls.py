@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .esim import SensorState, merge, noise_events, simulate
+from .esim import SensorModel, SensorState, get_sensor_model, merge, noise_events, sensor_truth, simulate
 from .rotation import random_rotation, unit
 from .scene import Ball, Camera, Scene, court_background
 
-BALL_RADIUS_M = {"volleyball": 0.105, "soccer": 0.11, "basketball": 0.12, "tennis": 0.033, "logo": 0.1}
+BALL_RADIUS_M = {"volleyball": 0.105, "soccer": 0.11, "basketball": 0.12, "tennis": 0.033, "logo": 0.1,
+                 "baseball": 0.0366, "tabletennis": 0.020}
 """Physical ball radii (m) used by the pinhole projection."""
 
 
@@ -42,13 +43,14 @@ def make_ball(cam: Camera, *, texture: str, radius_px: float, center_px, velocit
 
 def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1), radius_px: float = 100,
                   center=None, velocity_px_s=(0, 0), width: int = 640, height: int = 480,
-                  n_events: int | None = 60000, seed: int = 0, **opts):
+                  n_events: int | None = 60000, seed: int = 0, sensor: str | SensorModel = "ideal", **opts):
     """Events of one spinning ball in front of a plain (or textured) background.
 
     Parameters
     ----------
     texture : str
-        ``"volleyball"``, ``"soccer"``, ``"basketball"``, ``"tennis"`` or ``"logo"``.
+        A name in :data:`sim.textures.TEXTURES`: ``"volleyball"``, ``"soccer"``,
+        ``"basketball"``, ``"tennis"``, ``"logo"``, ``"baseball"`` or ``"tabletennis"``.
     rps : float
         Revolutions per second; a negative value spins the other way (the truth
         then reports the flipped axis and ``rps >= 0``).
@@ -66,6 +68,10 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         Stop at this many events (fewer if ``duration_s`` runs out first; None: run ``duration_s``).
     seed : int
         Seed of every random draw (initial orientation, threshold mismatch, noise).
+    sensor : str or SensorModel
+        Pixel model: a :data:`sim.esim.SENSOR_PRESETS` name (``"ideal"``, ``"realistic"``)
+        or a :class:`sim.esim.SensorModel`; ``threshold``, ``threshold_off``,
+        ``mismatch_sigma`` and ``refractory_us`` override its fields when given.
 
     Other Parameters
     ----------------
@@ -73,8 +79,9 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         Simulated time limit (default 2 s when ``n_events`` is set).
     projection : {"orthographic", "pinhole"}; focal_px : float (default 800)
     gravity_px_s2 : float, image-down acceleration (default 0)
-    threshold : float (0.15), threshold_off : float, mismatch_sigma : float (0.03)
-    refractory_us : float (0), step_px : float (0.25)
+    threshold : float, threshold_off : float, mismatch_sigma : float (log units), refractory_us : float (µs)
+        Override the sensor model's fields.
+    step_px : float (0.25)
     background : {"plain", "court"} (default "plain"), background_level : float (0.3)
     noise_rate_hz : float per pixel (0), hot_pixels : int (0)
     R0 : (3, 3) initial orientation (default: random from ``seed``)
@@ -89,7 +96,8 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         first event's time, ``radius_px``, ``velocity_px_s`` (2,), plus ``texture``,
         ``seed``, ``width``, ``height``, ``projection``, ``t_first_us``,
         ``t_last_us``, ``t0_us`` (time of ``R0``), ``R0`` (3, 3), ``threshold``,
-        ``mismatch_sigma``, ``n_events``.
+        ``mismatch_sigma``, ``n_events`` and ``sensor`` (:func:`sim.esim.sensor_truth`:
+        the preset name and every model field).
     """
     known = {"duration_s", "projection", "focal_px", "gravity_px_s2", "threshold", "threshold_off",
              "mismatch_sigma", "refractory_us", "step_px", "background", "background_level",
@@ -99,6 +107,7 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         raise TypeError(f"spinning_ball() got unknown option(s) {sorted(bad)}; known: {sorted(known)}")
     if n_events is None and opts.get("duration_s") is None:
         raise ValueError("give n_events or duration_s")
+    model = get_sensor_model(sensor)
     rng = np.random.default_rng(seed)
     axis = unit(axis)
     if rps < 0:
@@ -121,14 +130,13 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         scene.light = unit(opts["light"])
     if opts.get("ambient") is not None:
         scene.ambient = float(opts["ambient"])
-    threshold = float(opts.get("threshold", 0.15))
-    sigma = float(opts.get("mismatch_sigma", 0.03))
-    sensor = SensorState.new(width, height, sensor_rng, threshold=threshold,
-                             threshold_off=opts.get("threshold_off"), mismatch_sigma=sigma)
+    overrides = {k: float(opts[k]) for k in ("threshold", "threshold_off", "mismatch_sigma", "refractory_us")
+                 if opts.get(k) is not None}
+    state = SensorState.new(width, height, sensor_rng, model, **overrides)
     t0_us = int(opts.get("t0_us", 0))
     duration = float(opts.get("duration_s") or 2.0)
-    ev = simulate(scene, sensor, 0.0, duration, n_events=n_events, step_px=float(opts.get("step_px", 0.25)),
-                  refractory_s=float(opts.get("refractory_us", 0.0)) * 1e-6, t_offset_us=t0_us)
+    ev = simulate(scene, state, 0.0, duration, n_events=n_events, step_px=float(opts.get("step_px", 0.25)),
+                  t_offset_us=t0_us)
     rate = float(opts.get("noise_rate_hz", 0.0))
     hot = int(opts.get("hot_pixels", 0))
     if (rate > 0 or hot > 0) and ev.size:
@@ -146,6 +154,7 @@ def spinning_ball(texture: str = "volleyball", rps: float = 100.0, axis=(0, 0, 1
         "center": circ[:2].copy(), "radius_px": float(circ[2]), "velocity_px_s": vel,
         "texture": texture, "seed": seed, "width": width, "height": height,
         "projection": cam.projection, "t_first_us": t_first, "t_last_us": int(ev["t"][-1]) if ev.size else t0_us,
-        "t0_us": t0_us, "R0": R0, "threshold": threshold, "mismatch_sigma": sigma, "n_events": int(ev.size),
+        "t0_us": t0_us, "R0": R0, "threshold": state.model.threshold, "mismatch_sigma": state.model.mismatch_sigma,
+        "n_events": int(ev.size), "sensor": sensor_truth(sensor, state.model),
     }
     return ev, truth

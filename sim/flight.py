@@ -11,7 +11,7 @@ import numpy as np
 
 from capture.events import TRIGGER_DTYPE, make_triggers
 from .balls import BALL_RADIUS_M, make_ball
-from .esim import SensorState, merge, noise_events, simulate
+from .esim import SensorModel, SensorState, get_sensor_model, merge, noise_events, sensor_truth, simulate
 from .frames import SyncBox, render_frames
 from .recording import Recording
 from .rotation import random_rotation, unit
@@ -36,8 +36,9 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
            distractors=("player",), fps: float | None = None, exposure_s: float | None = None,
            frame_size=None, frame_to_event=None, frame_noise_dn: float = 2.0,
            frame_clock_offset_s: float = 0.0, frame_clock_drift_ppm: float = 0.0,
-           sync: SyncBox | bool | None = None, threshold: float = 0.15, mismatch_sigma: float = 0.03,
-           refractory_us: float = 0.0, step_px: float = 0.25, projection: str = "orthographic",
+           sync: SyncBox | bool | None = None, sensor: str | SensorModel = "ideal", threshold: float | None = None,
+           mismatch_sigma: float | None = None, refractory_us: float | None = None, step_px: float = 0.25,
+           projection: str = "orthographic",
            focal_px: float = 1000.0, n_events: int | None = None, t0_us: int = 0,
            track_dt_us: int = 1000, hits=(), seed: int = 0) -> Recording:
     """Simulate one ball flight across the sensor.
@@ -74,8 +75,13 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         stored per frame in ``truth["frames"]["t_frame_clock_s"]``.
     sync : SyncBox or True, optional
         Sync box: trigger edges (channel 0) in ``triggers`` and an LED in the frames.
-    threshold, mismatch_sigma, refractory_us, step_px
-        Event sensor (see :func:`sim.esim.simulate`).
+    sensor : str or SensorModel
+        Pixel model: a :data:`sim.esim.SENSOR_PRESETS` name (``"ideal"``, ``"realistic"``) or a
+        :class:`sim.esim.SensorModel`. Its leak and shot noise come on top of ``noise_rate_hz``.
+    threshold, mismatch_sigma, refractory_us : float, optional
+        Override the sensor model's fields (log units, log units, µs).
+    step_px : float
+        Largest image motion per render step (px; see :func:`sim.esim.simulate`).
     n_events : int, optional
         Stop the ball simulation at this many events.
     track_dt_us : int
@@ -94,8 +100,12 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         (``start_px``, ``velocity0_px_s``, ``gravity_px_s2`` at ``t0_us``), the
         ground-truth circle ``track`` (``t_us``, ``cx``, ``cy``, ``r``, ``vx``, ``vy``,
         ``visible``, ``flight``), ``segments`` (see ``hits``), ``distractors``, ``hot_pixels`` (x, y), ``noise_rate_hz``,
-        ``frames`` (fps, exposure, size, homography, times) and ``sync``.
+        ``frames`` (fps, exposure, size, homography, times), ``sync`` and ``sensor``
+        (:func:`sim.esim.sensor_truth`).
     """
+    model = get_sensor_model(sensor)
+    overrides = {k: float(v) for k, v in (("threshold", threshold), ("mismatch_sigma", mismatch_sigma),
+                                          ("refractory_us", refractory_us)) if v is not None}
     rng = np.random.default_rng(seed)
     path_rng, orient_rng, sensor_rng, noise_rng, bg_rng, dis_rng, frame_rng = rng.spawn(7)
     axis = unit(axis)
@@ -148,9 +158,8 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     if background not in ("court", "plain"):
         raise ValueError(f"background must be 'court' or 'plain', got {background!r}")
     scene = Scene(cam, objects, background=court_background(width, height, bg_rng) if background == "court" else None)
-    sensor = SensorState.new(width, height, sensor_rng, threshold=threshold, mismatch_sigma=mismatch_sigma)
-    ev = simulate(scene, sensor, 0.0, duration_s, n_events=n_events, step_px=step_px,
-                  refractory_s=refractory_us * 1e-6, t_offset_us=t0_us)
+    state = SensorState.new(width, height, sensor_rng, model, **overrides)
+    ev = simulate(scene, state, 0.0, duration_s, n_events=n_events, step_px=step_px, t_offset_us=t0_us)
     t_end_us = t0_us + int(round(duration_s * 1e6)) if n_events is None or ev.size < n_events else int(ev["t"][-1]) + 1
     noise, hot_xy = noise_events(width, height, t0_us, t_end_us, noise_rng, rate_hz_per_px=noise_rate_hz,
                                  hot_pixels=hot_pixels, hot_rate_hz=hot_rate_hz)
@@ -170,7 +179,8 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         "texture": texture, "seed": seed, "width": width, "height": height, "projection": projection,
         "t0_us": t0_us, "t_first_us": t_first, "t_last_us": int(ev["t"][-1]) if ev.size else t0_us,
         "R0": R0, "start_px": np.asarray(start_px, float), "velocity0_px_s": np.asarray(velocity_px_s, float),
-        "gravity_px_s2": g, "threshold": threshold, "mismatch_sigma": mismatch_sigma, "n_events": int(ev.size),
+        "gravity_px_s2": g, "threshold": state.model.threshold, "mismatch_sigma": state.model.mismatch_sigma,
+        "sensor": sensor_truth(sensor, state.model), "n_events": int(ev.size),
         "noise_rate_hz": noise_rate_hz, "hot_pixels": hot_xy, "distractors": dis_truth,
         "track": {"t_us": t_us, "cx": circ[:, 0], "cy": circ[:, 1], "r": circ[:, 2],
                   "vx": vel[:, 0], "vy": vel[:, 1], "visible": visible, "flight": ball.segment_at(ts)},

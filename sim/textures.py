@@ -136,9 +136,99 @@ def logo(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0.85,
     return ball_albedo + w * (logo_albedo - ball_albedo)
 
 
+def _segment_distance(x: np.ndarray, y: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+    """Euclidean distance of points ``(x, y)`` from the segment ``(x0, y0)``-``(x1, y1)``."""
+    dx, dy = x1 - x0, y1 - y0
+    t = np.clip(((x - x0) * dx + (y - y0) * dy) / (dx * dx + dy * dy), 0.0, 1.0)
+    return np.hypot(x - x0 - t * dx, y - y0 - t * dy)
+
+
+@lru_cache(maxsize=4)
+def _seam_arc_length(amp_rad: float, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """Longitudes (n + 1,) over [-pi, pi] and the arc length (rad) of the seam ``lat = amp cos(2 lon)`` up to each."""
+    lon = np.linspace(-np.pi, np.pi, n + 1)
+    lat = amp_rad * np.cos(2.0 * lon)
+    speed = np.hypot(np.cos(lat), -2.0 * amp_rad * np.sin(2.0 * lon))
+    return lon, np.r_[0.0, np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(lon))]
+
+
+def baseball(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0.9, stitch_albedo: float = 0.35,
+             seam_amp_rad: float = 0.45, n_stitches: int = 108, stitch_in_rad: float = 0.02,
+             stitch_out_rad: float = 0.10, stitch_slant_rad: float = 0.035,
+             stitch_half_rad: float = 0.012) -> np.ndarray:
+    """Baseball: white leather and two rows of red stitches along the curved figure-eight seam.
+
+    The seam is the curve ``lat = seam_amp_rad * cos(2 lon)`` (as on the tennis ball).
+    It carries ``n_stitches`` evenly spaced stitches (108 on a real ball, 2.4 mm apart);
+    each is a chevron of two strokes, one on each side of the seam, from
+    ``stitch_in_rad`` to ``stitch_out_rad`` away from it and slanted back along it by
+    ``stitch_slant_rad``, ``2 * stitch_half_rad`` thick (angles on the ball; at the
+    real radius of 36.6 mm the strokes are about 3 mm long and 0.9 mm thick). Red
+    thread on white leather is dark for a monochrome sensor (``stitch_albedo``).
+    The texture is sparse (the strokes cover about 4.4 % of the ball) and nearly
+    symmetric (the two rows mirror each other across the seam).
+
+    Positions are taken in seam coordinates: arc length ``s`` of the foot point on the
+    seam and distance ``n`` from it, both to first order in the distance from the seam
+    (the strokes reach 0.11 rad from it; its geodesic radius of curvature is 0.58 rad
+    or more).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    lon = np.arctan2(q[:, 1], q[:, 0])
+    lat = np.arcsin(np.clip(q[:, 2], -1.0, 1.0))
+    lat_s = seam_amp_rad * np.cos(2.0 * lon)
+    slope = -2.0 * seam_amp_rad * np.sin(2.0 * lon)  # d lat_s / d lon
+    cos_s = np.cos(lat_s)
+    norm = np.hypot(cos_s, slope)  # arc length of the seam per radian of longitude
+    d_lat = lat - lat_s
+    n = np.abs(d_lat * cos_s / norm)  # both rows alike: mirror across the seam
+    lon_t, s_t = _seam_arc_length(seam_amp_rad)
+    s = np.interp(lon, lon_t, s_t) + d_lat * slope / norm
+    period = s_t[-1] / n_stitches
+    k0 = np.floor(s / period)
+    dist = np.full(q.shape[0], np.inf)
+    for dk in (0, 1, 2):  # the nearest of the identical strokes is among these
+        x = s - (k0 + dk) * period
+        dist = np.minimum(dist, _segment_distance(x, n, 0.0, stitch_in_rad, -stitch_slant_rad, stitch_out_rad))
+    w = _seam_weight(dist, stitch_half_rad, edge_rad)
+    return ball_albedo + w * (stitch_albedo - ball_albedo)
+
+
+TABLETENNIS_LOGO = (((0.0, 0.0), (0.0, 1.0)), ((0.6, 0.0), (0.6, 1.0)), ((0.0, 0.5), (0.6, 0.5)),  # H
+                    ((0.9, 0.0), (0.9, 1.0)),  # I
+                    ((1.2, 1.0), (1.8, 1.0)), ((1.5, 0.0), (1.5, 1.0)))  # T
+"""Strokes of the table-tennis logo, the letters "HIT", in letter heights (x right, y up)."""
+
+
+def tabletennis(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0.9, logo_albedo: float = 0.1,
+                logo_width_deg: float = 17.0, stroke_half_rad: float = 0.018) -> np.ndarray:
+    """Table-tennis ball: plain (white; orange is about 0.6 grey) with one small printed text logo.
+
+    The logo, centred on +x, is the word of :data:`TABLETENNIS_LOGO`: six dark strokes
+    ``2 * stroke_half_rad`` thick (2 deg), the word ``logo_width_deg`` across between
+    stroke centres (about 19 deg overall, 11 deg tall), laid out in the tangent plane
+    at +x (gnomonic coordinates ``(q_y, q_z) / q_x``, so that +z is up). It covers
+    about 0.3 % of the ball: a sparse, strongly asymmetric texture.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    pts = np.asarray(TABLETENNIS_LOGO, np.float64)
+    scale = np.radians(logo_width_deg) / np.ptp(pts[..., 0])
+    centre = 0.5 * (pts.min(axis=(0, 1)) + pts.max(axis=(0, 1)))
+    front = q[:, 0] > 0.5  # the logo lies within 15 deg of +x
+    dist = np.full(q.shape[0], np.inf)
+    a = q[front, 1] / q[front, 0] / scale + centre[0]
+    b = q[front, 2] / q[front, 0] / scale + centre[1]
+    d = np.full(a.shape, np.inf)
+    for (x0, y0), (x1, y1) in pts:
+        d = np.minimum(d, _segment_distance(a, b, x0, y0, x1, y1))
+    dist[front] = d * scale
+    w = _seam_weight(dist, stroke_half_rad, edge_rad)
+    return ball_albedo + w * (logo_albedo - ball_albedo)
+
+
 TEXTURES: dict[str, Callable[..., np.ndarray]] = {
     "volleyball": volleyball, "soccer": soccer, "basketball": basketball,
-    "tennis": tennis, "logo": logo,
+    "tennis": tennis, "logo": logo, "baseball": baseball, "tabletennis": tabletennis,
 }
 """Texture functions by name."""
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim.rotation import axis_angle_matrices
-from sim.textures import TEXTURES, _soccer_faces, soccer, volleyball
+from sim.textures import TABLETENNIS_LOGO, TEXTURES, _soccer_faces, baseball, soccer, tabletennis, volleyball
 
 
 def _unit(v):
@@ -60,3 +60,52 @@ def test_volleyball_has_three_strips_per_face_and_perpendicular_neighbours():
     on_seam = np.isclose(volleyball(q, 0.005), 0.3, atol=1e-9)
     assert on_seam.mean() > 0.02
     np.testing.assert_array_equal(np.isclose(volleyball(q @ rot.T, 0.005), 0.3, atol=1e-9), on_seam)
+
+
+def _sphere(n, seed=0):
+    return _unit(np.random.default_rng(seed).normal(size=(n, 3)))
+
+
+def test_baseball_stitches_cover_their_designed_area_along_the_seam():
+    q = _sphere(400000)
+    alb = baseball(q, 1e-4)
+    assert alb.min() == pytest.approx(0.35) and alb.max() == pytest.approx(0.9)
+    # 108 chevrons of two strokes: 0.024 rad wide, length hypot(0.035, 0.08) between the cap centres
+    stroke = 2 * 0.012 * np.hypot(0.035, 0.10 - 0.02) + np.pi * 0.012**2
+    designed = 2 * 108 * stroke / (4 * np.pi)
+    dark = alb < 0.625
+    assert np.mean(dark) == pytest.approx(designed, rel=0.05)
+    assert 0.04 < designed < 0.05  # sparse
+    # every stitch lies within the stitch band around the seam lat = 0.45 cos(2 lon)
+    lon, lat = np.arctan2(q[:, 1], q[:, 0]), np.arcsin(q[:, 2])
+    assert np.all(np.abs(lat - 0.45 * np.cos(2 * lon))[dark] < 0.10 + 0.012 + 0.05)
+    # nearly symmetric: the half turn about z maps the seam and its 108 stitches onto themselves
+    turned = q * [-1.0, -1.0, 1.0]
+    assert np.mean(np.abs(baseball(turned, 0.01) - baseball(q, 0.01)) < 0.02) > 0.995
+
+
+def test_tabletennis_logo_is_small_text_of_the_designed_area():
+    q = _sphere(400000, seed=1)
+    alb = tabletennis(q, 1e-4)
+    assert alb.min() == pytest.approx(0.1) and alb.max() == pytest.approx(0.9)
+    dark = alb < 0.5
+    # designed area: the union of the strokes (capsules 0.036 rad wide) in the tangent plane at +x,
+    # rasterised here independently of the texture
+    pts = np.asarray(TABLETENNIS_LOGO, float)
+    scale = np.radians(17.0) / np.ptp(pts[..., 0])
+    g = np.arange(-0.5, 2.3, 0.002)
+    gx, gy = np.meshgrid(g, g)
+    inside = np.zeros(gx.shape, bool)
+    for (x0, y0), (x1, y1) in pts:
+        d = np.array([x1 - x0, y1 - y0])
+        t = np.clip(((gx - x0) * d[0] + (gy - y0) * d[1]) / (d @ d), 0, 1)
+        inside |= np.hypot(gx - x0 - t * d[0], gy - y0 - t * d[1]) <= 0.018 / scale
+    designed = inside.sum() * (0.002 * scale) ** 2 / (4 * np.pi)
+    assert np.mean(dark) == pytest.approx(designed, rel=0.08)
+    assert designed < 0.004
+    # text, not a disc: 15-20 deg across, and most of the logo's cap is still white
+    assert 15.0 < np.degrees(np.ptp(np.arctan2(q[dark, 1], q[dark, 0]))) < 20.0
+    ang = np.degrees(np.arccos(np.clip(q[dark, 0], -1, 1)))
+    cap = np.degrees(np.arccos(np.clip(q[:, 0], -1, 1))) < ang.max()
+    assert np.mean(dark[cap]) < 0.5  # a disc would fill it
+    assert np.all(np.abs(q[dark, 2]) < np.sin(np.radians(7.0)))  # one line of text: wider than tall
