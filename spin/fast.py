@@ -18,7 +18,7 @@
    sensor or hidden) and how evenly the events fill the window in time (bursts leave
    aliased spins possible).
 4. Cross-check: the same estimate, from scratch, on the first and on the second half of the
-   events (in time).  A right answer comes out of both halves; a wrong one that wins on the
+   events in time (on quarters for windows over many turns).  A right answer comes out of both halves; a wrong one that wins on the
    whole window (an aliased speed, a mirrored axis, a sharp but spurious alignment of sparse
    seams) rarely comes out of both.  Confidence falls as either half strays beyond 5 deg / 5 %
    of the whole window's answer, and the halves' spread gives the uncertainty.
@@ -181,7 +181,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared (time-sorted) ball events.
 
     :func:`estimate_window` on all the events and, with ``check``, again from scratch on each half
-    of them in time (the cross-check); where a half's answer strays, the whole window's answer
+    of them in time (the cross-check; on each quarter where the window covers at least eight times the
+    last level's span of rotation, 12 rad: there a sparse or symmetric texture can alias alike in
+    both halves); where a half's answer strays, the whole window's answer
     refined on that half replaces it if it scores at least as high there (:func:`_half_answer`).  The confidence of the whole window's answer is scaled by
     ``clip((1.6 - worst) / 0.6, 0, 1)``, ``worst`` being the larger of the halves' deviations from
     it in units of (``CHECK_ANGLE_DEG``, ``log CHECK_RATIO``): 1 while both halves lie within
@@ -201,9 +203,14 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     half = len(ev) // 2
     if half < min_half_events:
         return replace(whole, confidence=0.5 * whole.confidence)
+    # windows over many turns are checked on quarters (each still spans more than a level uses): on
+    # them, a sparse or symmetric texture can alias the same way in both halves
+    turns_rad = float(np.linalg.norm(whole.w_rad_s)) * float(ev.tau_s[0] - ev.tau_s[-1])
+    n_parts = 4 if turns_rad >= 4 * 2 * LEVELS[-1][0] and len(ev) // 4 >= min_half_events else 2
+    bounds = [len(ev) * k // n_parts for k in range(n_parts + 1)]
     halves = []
-    for part in (slice(0, half), slice(half, None)):
-        events = _recentred(ev.take(part))
+    for i0, i1 in zip(bounds[:-1], bounds[1:]):
+        events = _recentred(ev.take(slice(i0, i1)))
         own = estimate_window(events, velocity_px_s, assess=False, **opts)
         w = own.w_rad_s
         angle, log_ratio = _deviation(w, whole.w_rad_s)
@@ -214,7 +221,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     for w in halves:
         angle, log_ratio = _deviation(w, whole.w_rad_s)
         worst = max(worst, angle / CHECK_ANGLE_DEG, log_ratio / math.log(CHECK_RATIO))
-    angle, log_ratio = _deviation(halves[0], halves[1])
+    angle, log_ratio = _deviation(halves[0], halves[-1])
     axis_sigma = max(SIGMA_SCALE_AXIS * angle, SIGMA_FLOOR_DEG)
     rps_sigma = max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), SIGMA_FLOOR_PCT)
     spread = max(axis_sigma / (0.5 * CHECK_ANGLE_DEG), rps_sigma / (50.0 * (CHECK_RATIO - 1.0)))

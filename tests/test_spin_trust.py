@@ -106,3 +106,22 @@ def test_paper_method_reports_no_uncertainty(ball):
     events, truth = sim.spinning_ball("volleyball", rps=100, axis=(0, 0, 1), radius_px=40, n_events=8000, seed=2)
     est = spin.estimate_spin(events, truth["center"], truth["radius_px"], method="paper", iterations=5)
     assert math.isnan(est.axis_sigma_deg) and math.isnan(est.rps_sigma_pct)
+
+
+def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
+    ev, _ = ball
+    span_s = float(ev.tau_s[0] - ev.tau_s[-1])
+    w_whole = np.array([0.0, 0.0, 13.0 / span_s])  # 13 rad over the window
+    calls = []
+
+    def fake_window(events, velocity_px_s, assess=True, **_):
+        calls.append(len(events))
+        # the third quarter aliases (twice the speed): halves would have averaged it away
+        w = w_whole * (2.0 if len(calls) == 4 else 1.0)
+        return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1)
+
+    monkeypatch.setattr(fast, "estimate_window", fake_window)
+    monkeypatch.setattr(fast, "_half_answer", lambda half, own, whole, **_: own.w_rad_s)
+    res = fast.estimate_fast(ev, (0.0, 0.0))
+    assert len(calls) == 5 and sum(calls[1:]) == len(ev)
+    assert res.confidence < 0.5
