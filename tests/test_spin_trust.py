@@ -116,7 +116,7 @@ def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
 
     def fake_window(events, velocity_px_s, assess=True, **_):
         calls.append(len(events))
-        # the third quarter aliases (twice the speed): halves would have averaged it away
+        # the third quarter aliases (twice the speed)
         w = w_whole * (2.0 if len(calls) == 4 else 1.0)
         return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1)
 
