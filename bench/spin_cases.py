@@ -42,14 +42,6 @@ def camera() -> Intrinsics:
     return Intrinsics(K=k, dist=np.zeros(5), width=WIDTH, height=HEIGHT)
 
 
-def available(texture: str, sensor: str) -> bool:
-    """Whether the simulator knows this texture and sensor preset."""
-    from sim import esim
-    from sim.textures import TEXTURES as known
-
-    return texture in known and (sensor == "ideal" or sensor in getattr(esim, "SENSOR_PRESETS", {}))
-
-
 def draw(row: tuple, seed: int) -> dict:
     """The random parameters of case ``seed`` of ``row`` (same row and seed: same case)."""
     texture, rps, motion, lens, sensor = row
@@ -102,11 +94,10 @@ def make_case(row: tuple, seed: int, cache_dir: str | os.PathLike | None = None)
         return events, truth
     p = draw(row, seed)
     kw = dict(projection="pinhole", focal_px=FOCAL_PX) if lens == "perspective" else {}
-    if sensor != "ideal":
-        kw["sensor"] = sensor
     events, t = sim.spinning_ball(texture, rps=rps, axis=p["axis"], radius_px=p["radius_px"], center=p["center"],
                                   velocity_px_s=p["velocity_px_s"], width=WIDTH, height=HEIGHT,
-                                  n_events=p["n_events"], duration_s=MAX_WINDOW_S, seed=p["sim_seed"], **kw)
+                                  n_events=p["n_events"], duration_s=MAX_WINDOW_S, seed=p["sim_seed"], sensor=sensor,
+                                  **kw)
     truth = {"axis": np.asarray(t["axis"], float), "omega_rad_s": float(t["omega_rad_s"]), "rps": float(t["rps"]),
              "center": np.asarray(t["center"], float), "radius_px": float(t["radius_px"]),
              "velocity_px_s": np.asarray(t["velocity_px_s"], float), "off_axis_deg": p["off_axis_deg"],
@@ -121,6 +112,5 @@ def make_case(row: tuple, seed: int, cache_dir: str | os.PathLike | None = None)
 
 
 def rows(textures=TEXTURES, rates=RATES_RPS, motions=MOTIONS, lenses=LENSES, sensors=SENSORS) -> list[tuple]:
-    """Every row ``(texture, rps, motion, lens, sensor)`` of the matrix the simulator can make."""
-    return [(tx, r, m, le, se) for tx in textures for r in rates for m in motions for le in lenses for se in sensors
-            if available(tx, se)]
+    """Every row ``(texture, rps, motion, lens, sensor)`` of the matrix."""
+    return [(tx, r, m, le, se) for tx in textures for r in rates for m in motions for le in lenses for se in sensors]

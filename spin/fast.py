@@ -18,10 +18,11 @@
    sensor or hidden) and how evenly the events fill the window in time (bursts leave
    aliased spins possible).
 4. Cross-check: the same estimate, from scratch, on the first and on the second half of the
-   events in time (on quarters for windows over many turns).  A right answer comes out of both halves; a wrong one that wins on the
-   whole window (an aliased speed, a mirrored axis, a sharp but spurious alignment of sparse
-   seams) rarely comes out of both.  Confidence falls as either half strays beyond 5 deg / 5 %
-   of the whole window's answer, and the halves' spread gives the uncertainty.
+   events in time (on quarters for windows over many turns).  A right answer comes out of both
+   halves; a wrong one that wins on the whole window (an aliased speed, a mirrored axis, a sharp
+   but spurious alignment of sparse seams) rarely comes out of both.  Confidence falls as either
+   half strays beyond 5 deg / 5 % of the whole window's answer, and the halves' spread gives the
+   uncertainty.
 """
 
 from __future__ import annotations
@@ -44,8 +45,10 @@ FAST_EVENTS = 24_000
 # hemisphere) and the lift's depth errors near the rim grow, which lets spurious alignments win.
 # The IWE scale is capped at ``max_scale``.
 LEVELS = ((1.5, 12.0, 1.2, 500, 2, 1e-4), (1.5, 40.0, 1.0, 2500, 6, 3e-4), (1.5, 100.0, 0.55, 8000, 6, 1e-6))
-# the cross-check's halves must agree with the whole window within these (deg, ratio) for full trust
+# the cross-check's parts must agree with the whole window within these (deg, ratio) for full trust
 CHECK_ANGLE_DEG, CHECK_RATIO = 5.0, 1.05
+# a window turning through at least this much (rad: eight times a level's span) is checked on quarters
+QUARTERS_FROM_RAD = 8 * LEVELS[-1][0]
 # uncertainty (1 sigma): the halves' difference times these (axis, rate), at least the floors (deg, %).
 # Two independent halves differ with sqrt(2) times either's sigma; a half has half the events and
 # (time halves) half the rotation, which costs the rate about twice as much precision as the axis.
@@ -69,15 +72,24 @@ class FastResult:
     time_fill: float
     axis_sigma_deg: float = float("nan")
     rps_sigma_pct: float = float("nan")
-    check: float = float("nan")
+
+
+def _deviation(w, w_ref) -> tuple[float, float]:
+    """Axis angle (deg) and speed ratio's log distance of ``w`` from ``w_ref`` (rad/s vectors)."""
+    w, w_ref = np.asarray(w, dtype=np.float64), np.asarray(w_ref, dtype=np.float64)
+    o, o_ref = float(np.linalg.norm(w)), float(np.linalg.norm(w_ref))
+    if min(o, o_ref) <= 0:
+        return 180.0, np.inf
+    angle = math.degrees(math.acos(float(np.clip(w @ w_ref / (o * o_ref), -1.0, 1.0))))
+    return angle, abs(math.log(o / o_ref))
 
 
 def _same(w1, w2, angle_deg=5.0, ratio=1.03) -> bool:
-    w1, w2 = np.asarray(w1, dtype=np.float64), np.asarray(w2, dtype=np.float64)
-    o1, o2 = math.sqrt(w1 @ w1), math.sqrt(w2 @ w2)
-    if min(o1, o2) <= 0:
-        return o1 == o2
-    return (w1 @ w2) / (o1 * o2) > math.cos(math.radians(angle_deg)) and max(o1, o2) / min(o1, o2) < ratio
+    """Whether two angular velocities lie within ``angle_deg`` and a speed factor ``ratio`` of each other."""
+    angle, log_ratio = _deviation(w1, w2)
+    if math.isinf(log_ratio):  # a zero vector: the same only as another
+        return not (np.any(w1) or np.any(w2))
+    return angle < angle_deg and log_ratio < math.log(ratio)
 
 
 def _same_solution(w1, w2) -> bool:
@@ -166,34 +178,24 @@ def _recentred(ev: BallEvents) -> BallEvents:
     return BallEvents(ev.x_px, ev.y_px, ev.s_s, mid - ev.s_s, ev.weight, ev.radius_px)
 
 
-def _deviation(w, w_ref) -> tuple[float, float]:
-    """Axis angle (deg) and speed ratio's log distance of ``w`` from ``w_ref`` (rad/s vectors)."""
-    w, w_ref = np.asarray(w, dtype=np.float64), np.asarray(w_ref, dtype=np.float64)
-    o, o_ref = float(np.linalg.norm(w)), float(np.linalg.norm(w_ref))
-    if min(o, o_ref) <= 0:
-        return 180.0, np.inf
-    angle = math.degrees(math.acos(float(np.clip(w @ w_ref / (o * o_ref), -1.0, 1.0))))
-    return angle, abs(math.log(o / o_ref))
-
-
 def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half_events: int = 100,
                   **opts) -> FastResult:
     """Estimate ``w = omega * axis`` (rad/s) and the velocity from prepared (time-sorted) ball events.
 
     :func:`estimate_window` on all the events and, with ``check``, again from scratch on each half
-    of them in time (the cross-check; on each quarter where the window covers at least eight times the
-    last level's span of rotation, 12 rad: there a sparse or symmetric texture can alias alike in
-    both halves); where a half's answer strays, the whole window's answer
-    refined on that half replaces it if it scores at least as high there (:func:`_half_answer`).  The confidence of the whole window's answer is scaled by
-    ``clip((1.6 - worst) / 0.6, 0, 1)``, ``worst`` being the larger of the halves' deviations from
-    it in units of (``CHECK_ANGLE_DEG``, ``log CHECK_RATIO``): 1 while both halves lie within
-    5 deg / 5 %, 0.5 at 1.3 times that, 0 beyond 1.6 times; and by ``clip(1.75 - spread, 0, 1)``,
+    of them in time (the cross-check; on each quarter where the window turns through at least
+    ``QUARTERS_FROM_RAD``: there a sparse or symmetric texture can alias alike in both halves).
+    Where a part's answer strays, the whole window's answer refined on that part replaces it if it
+    scores at least as high there (:func:`_half_answer`).  The confidence of the whole window's
+    answer is scaled by ``clip((1.6 - worst) / 0.6, 0, 1)``, ``worst`` being the largest of the
+    parts' deviations from it in units of (``CHECK_ANGLE_DEG``, ``log CHECK_RATIO``): 1 while all
+    parts lie within 5 deg / 5 %, 0.5 at 1.3 times that, 0 beyond 1.6 times; and by ``clip(1.75 - spread, 0, 1)``,
     ``spread`` the larger of the uncertainties in units of 2.5 deg / 2.5 %.  Halves of fewer than
     ``min_half_events`` events cannot check: the confidence is then halved.  The product is
     squared (see the code): a window is trusted (0.5) only while its 2 sigma stays within about
-    5 deg / 5 % and both halves within about 6 deg / 6 % of its answer.
+    5 deg / 5 % and every part within about 6 deg / 6 % of its answer.
 
-    The uncertainty (1 sigma) is the halves' difference scaled by ``SIGMA_SCALE_AXIS`` /
+    The uncertainty (1 sigma) is the difference of the first and the last part scaled by ``SIGMA_SCALE_AXIS`` /
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; ``axis_sigma_deg``
     and ``rps_sigma_pct`` are NaN without a cross-check.  ``opts`` go to :func:`estimate_window`.
     """
@@ -206,22 +208,21 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     # windows over many turns are checked on quarters (each still spans more than a level uses): on
     # them, a sparse or symmetric texture can alias the same way in both halves
     turns_rad = float(np.linalg.norm(whole.w_rad_s)) * float(ev.tau_s[0] - ev.tau_s[-1])
-    n_parts = 4 if turns_rad >= 4 * 2 * LEVELS[-1][0] and len(ev) // 4 >= min_half_events else 2
+    n_parts = 4 if turns_rad >= QUARTERS_FROM_RAD and len(ev) // 4 >= min_half_events else 2
     bounds = [len(ev) * k // n_parts for k in range(n_parts + 1)]
-    halves = []
+    parts = []
+    worst = 0.0
     for i0, i1 in zip(bounds[:-1], bounds[1:]):
         events = _recentred(ev.take(slice(i0, i1)))
         own = estimate_window(events, velocity_px_s, assess=False, **opts)
+        angle, log_ratio = _deviation(own.w_rad_s, whole.w_rad_s)
         w = own.w_rad_s
-        angle, log_ratio = _deviation(w, whole.w_rad_s)
         if angle > CHECK_ANGLE_DEG or log_ratio > math.log(CHECK_RATIO):
             w = _half_answer(events, own, whole, **opts)
-        halves.append(w)
-    worst = 0.0
-    for w in halves:
-        angle, log_ratio = _deviation(w, whole.w_rad_s)
+            angle, log_ratio = _deviation(w, whole.w_rad_s)
         worst = max(worst, angle / CHECK_ANGLE_DEG, log_ratio / math.log(CHECK_RATIO))
-    angle, log_ratio = _deviation(halves[0], halves[-1])
+        parts.append(w)
+    angle, log_ratio = _deviation(parts[0], parts[-1])
     axis_sigma = max(SIGMA_SCALE_AXIS * angle, SIGMA_FLOOR_DEG)
     rps_sigma = max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), SIGMA_FLOOR_PCT)
     spread = max(axis_sigma / (0.5 * CHECK_ANGLE_DEG), rps_sigma / (50.0 * (CHECK_RATIO - 1.0)))
@@ -229,7 +230,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
     confidence = (whole.confidence * float(np.clip((1.6 - worst) / 0.6, 0.0, 1.0))
                   * float(np.clip(1.75 - spread, 0.0, 1.0))) ** 2
-    return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma, check=worst)
+    return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma)
 
 
 def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
