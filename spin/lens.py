@@ -7,7 +7,7 @@ finite distance, off the optical axis, through a distorting lens: its silhouette
 and its texture is foreshortened.  This module maps event pixels to *orthographic-equivalent*
 coordinates, so that the unchanged estimator works on them:
 
-1. the pixel is undistorted to a viewing ray (``cv2.undistortPoints``);
+1. the pixel is undistorted to a viewing ray (``calib.Intrinsics.rays``);
 2. the ray is rotated by ``Rc``, the rotation that takes the ray through the sphere's centre
    (the viewing cone's axis) to ``+Z`` (the *ball frame*; it keeps the camera's X right, Y down
    for a ball on the optical axis);
@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 CIRCLES = ("detected", "projected")
@@ -56,7 +55,7 @@ def normalised_coordinates(camera, uv_px) -> np.ndarray:
     -------
     ndarray, float64, shape (2, N)
         The rays through the pixels are ``(x, y, 1)`` in the camera frame.  With distortion,
-        ``cv2.undistortPoints`` inverts it iteratively (as ``calib.Intrinsics.rays`` does: to
+        ``calib.Intrinsics.rays`` inverts it iteratively (``cv2.undistortPoints``: to
         about 1e-4 px within 20 deg of the axis for a strong barrel ``k1 = -0.25``).
     """
     uv = np.ascontiguousarray(uv_px, dtype=np.float64).reshape(-1, 2)
@@ -64,7 +63,7 @@ def normalised_coordinates(camera, uv_px) -> np.ndarray:
     if not len(uv):
         return np.zeros((2, 0))
     if np.any(camera.dist):
-        return cv2.undistortPoints(uv.reshape(-1, 1, 2), k, np.asarray(camera.dist, np.float64)).reshape(-1, 2).T
+        return camera.rays(uv)[:, :2].T
     inv = np.linalg.inv(k)
     u, v = uv.T
     x, y, w = (inv[i, 0] * u + inv[i, 1] * v + inv[i, 2] for i in range(3))
@@ -77,13 +76,6 @@ def unit_rays(camera, uv_px) -> np.ndarray:
     rays = np.column_stack([x, y, np.ones(len(x))])
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     return rays
-
-
-def project(camera, rays) -> np.ndarray:
-    """Pixels (N, 2) of directions ``rays`` (N, 3) in the camera frame (``z > 0``), with distortion."""
-    uv, _ = cv2.projectPoints(np.asarray(rays, dtype=np.float64).reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
-                              np.asarray(camera.K, dtype=np.float64), np.asarray(camera.dist, dtype=np.float64))
-    return uv.reshape(-1, 2)
 
 
 def _circle_points(center_px, radius_px: float, n: int = RIM_SAMPLES) -> np.ndarray:
@@ -214,7 +206,7 @@ def ball_view(camera, center_px, radius_px: float, circle: str = "detected") -> 
     radius = focal_px(camera) * float(np.tan(alpha))
     # the silhouette: the cone's rim rays (rows 0 and 1 of Rc are the ball frame's X and Y axes)
     rim = _circle_points((0.0, 0.0), np.sin(alpha)) @ rotation[:2] + np.cos(alpha) * axis
-    reach = float(np.max(np.linalg.norm(project(camera, rim) - c, axis=1)))
+    reach = float(np.max(np.linalg.norm(camera.project(rim) - c, axis=1)))
     distance = radius / float(np.sin(alpha))
     # the centre moves at constant depth along the ray through the moving circle's centre:
     # d(normalised coordinates) / d(pixel) by central differences over +-0.5 px
@@ -223,7 +215,7 @@ def ball_view(camera, center_px, radius_px: float, circle: str = "detected") -> 
     rate = np.column_stack([xy[:, 0] - xy[:, 1], xy[:, 2] - xy[:, 3]])
     centre_rate = distance * axis[2] * rotation[:, :2] @ rate
     view = BallView(rotation, alpha, radius, distance, centre_rate, np.eye(2), reach, camera)
-    xy = ball_coordinates(view, project(camera, axis[None]) + steps, np.zeros(4), (0.0, 0.0))[0]
+    xy = ball_coordinates(view, camera.project(axis[None]) + steps, np.zeros(4), (0.0, 0.0))[0]
     return replace(view, scale=np.column_stack([xy[:, 0] - xy[:, 1], xy[:, 2] - xy[:, 3]]))
 
 

@@ -44,7 +44,7 @@ def _errors(est, truth):
 
 def _distort(camera, uv_px):
     """Pixels (N, 2) of the undistorted pinhole ``PINHOLE`` seen through ``camera``'s lens."""
-    return lens.project(camera, lens.unit_rays(PINHOLE, uv_px))
+    return camera.project(lens.unit_rays(PINHOLE, uv_px))
 
 
 def _silhouette_circle(truth, camera=PINHOLE):
@@ -119,7 +119,7 @@ def test_ball_coordinates_follow_a_ball_moving_parallel_to_the_image(camera):
     for t_s in (0.0, 1e-3, 2e-3):
         c = c0 + v3 * t_s
         seen = offsets @ -c > view.radius * view.radius  # in front of the tangent plane through the rim
-        uv = lens.project(camera, c + offsets[seen])
+        uv = camera.project(c + offsets[seen])
         xy, hit = lens.ball_coordinates(view, uv, np.full(len(uv), t_s), seen_velocity)
         assert hit.mean() > 0.99
         error = np.abs(xy[:, hit] - (view.rotation @ offsets[seen][hit].T)[:2]).max()
