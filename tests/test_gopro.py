@@ -91,15 +91,19 @@ def test_preview_start_stop(fake):
 
 
 def test_busy_camera_waits_then_gives_clear_error(clip):
-    with FakeGoPro(clip, busy_s=0.3) as fake:
+    with FakeGoPro(clip, busy_s=0.3, finish_s=0.0) as fake:
         cam = GoPro(host=fake.host, port=fake.port)
         cam.start_recording()
         t0 = time.monotonic()
-        cam.stop_recording(timeout_s=2.0)  # waits out the busy period
-        assert time.monotonic() - t0 >= 0.2
+        cam.stop_recording(timeout_s=2.0)  # sent at once, then waits out the busy period
+        assert time.monotonic() - t0 >= 0.25
+        assert not fake.encoding and not fake.busy
         cam.start_recording(timeout_s=2.0)
         with pytest.raises(CameraBusy, match="still busy after 0.05 s"):
             cam.stop_recording(timeout_s=0.05)
+        assert not fake.encoding  # the stop itself was not held back by the busy camera
+        cam.stop_recording(timeout_s=2.0)
+        cam.start_recording(timeout_s=2.0)
         time.sleep(0.35)
         with pytest.raises(CameraBusy, match="still recording"):
             cam.set_setting(3, 0, timeout_s=0.05)

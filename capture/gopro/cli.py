@@ -16,9 +16,8 @@ import json
 import time
 
 from capture import cliargs
-from capture.gopro.client import (
-    ANTI_FLICKER_OPTIONS, FPS_OPTIONS, LENS_OPTIONS, PORT, RESOLUTION_OPTIONS, GoPro, MediaNotFound,
-)
+from capture.gopro.client import PORT, GoPro, MediaNotFound
+from capture.gopro.models import FPS_OPTIONS, LENS_OPTIONS, MAINS_HZ, RESOLUTION_OPTIONS
 from capture.gopro.fake import FakeGoPro
 
 PROG = "python -m capture.gopro"
@@ -38,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--resolution", default="1080", choices=list(RESOLUTION_OPTIONS))
     c.add_argument("--fps", type=int, default=240, choices=list(FPS_OPTIONS), help="frames per second")
     c.add_argument("--lens", default="linear", choices=list(LENS_OPTIONS))
-    c.add_argument("--anti-flicker", default="50Hz", choices=list(ANTI_FLICKER_OPTIONS),
+    c.add_argument("--anti-flicker", default="50Hz", choices=list(MAINS_HZ),
                    help="mains frequency of the lighting")
     c.add_argument("--set-time", action="store_true", help="also set the camera clock to this computer's")
     r = sub.add_parser("record", help="record for a while")
@@ -68,16 +67,20 @@ def _run(args) -> None:
             cam = GoPro(args.serial, host=args.host, port=args.port)
         stack.enter_context(cam)
         if args.cmd == "state":
-            print(json.dumps(cam.state(), indent=1))
+            print(json.dumps({"model": cam.model.name, **cam.state()}, indent=1))
         elif args.cmd == "list":
             for m in cam.media_list():
                 print(f"{m.path}\t{m.size_bytes}")
         elif args.cmd == "configure":
             cam.configure(resolution=args.resolution, fps=args.fps, lens=args.lens,
                           hypersmooth=False, anti_flicker=args.anti_flicker)
+            for note in cam.notes:
+                print(note)
             if args.set_time:
                 cam.set_date_time()
         elif args.cmd == "record":
+            for warning in cam.health():
+                print(warning)
             cam.start_recording()
             time.sleep(args.duration)
             cam.stop_recording()

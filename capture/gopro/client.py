@@ -1,6 +1,8 @@
-"""HTTP client for a GoPro (HERO9 and later) over its wired USB network (Open GoPro HTTP API).
+"""HTTP client for a GoPro (HERO10 to HERO13 Black) over its wired USB network (Open GoPro HTTP API).
 
-Facts used (Open GoPro HTTP specification):
+HERO9 Black cannot be controlled over USB (the specification says so); :meth:`GoPro.open` says
+so in one line. Per-model answers (option ids, what each model accepts) are in
+:mod:`capture.gopro.models`. Facts used (Open GoPro HTTP specification and its Python SDK):
 
 - the camera answers on ``172.2X.1YZ.51:8080`` where ``XYZ`` are the last three digits of its serial;
 - ``/gopro/camera/control/wired_usb?p=1`` enables control over USB;
@@ -8,8 +10,14 @@ Facts used (Open GoPro HTTP specification):
 - ``/gopro/camera/state`` returns ``{"status": {id: value}, "settings": {id: value}}``;
   status 8 is "system busy", status 10 is "encoding";
 - ``/gopro/camera/shutter/start`` and ``.../stop``;
-- ``/gopro/camera/setting?setting=ID&option=OPTION``;
-- ``/gopro/camera/set_date_time?date=YYYY_MM_DD&time=HH_MM_SS&tzone=MIN&dst=0|1``;
+- ``/gopro/camera/setting?setting=ID&option=OPTION``; a refused option answers 403 with the
+  options the camera supports;
+- ``/gopro/camera/info`` (model number, firmware), ``/gopro/camera/presets/set_group?id=1000``
+  (the video preset group; the SDK loads it before video settings);
+- the shutter start is confirmed by status 10 (encoding) becoming 1; after the shutter stop the
+  file is complete once encoding and busy (status 8) are both 0;
+- ``/gopro/camera/set_date_time?date=YYYY_MM_DD&time=HH_MM_SS&tzone=MIN&dst=0|1`` (``tzone``/``dst``
+  from HERO11 on);
 - ``/gopro/media/list`` and ``/videos/DCIM/<folder>/<file>`` for download (HTTP Range supported);
 - ``/gopro/camera/stream/start?port=8554`` and ``.../stop``: the framing preview (UDP MPEG-TS),
   which cannot run while recording.
@@ -29,39 +37,20 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from capture.gopro.models import (
+    AUTO_POWER_DOWN_NEVER, CONTROL_MODE_PRO, FPS_OPTIONS, HYPERSMOOTH_OFF, LENS_OPTIONS, MODELS,
+    PRESET_GROUP_VIDEO, RESOLUTION_OPTIONS, SD_STATUS, SETTING_ANTI_FLICKER, SETTING_AUTO_POWER_DOWN,
+    SETTING_CONTROL_MODE, SETTING_FPS, SETTING_HYPERSMOOTH, SETTING_RESOLUTION, SETTING_VIDEO_LENS,
+    STATUS_BATTERY_PCT, STATUS_BUSY, STATUS_COLD, STATUS_ENCODING, STATUS_OVERHEATING, STATUS_PRESET_GROUP,
+    STATUS_REMAINING_VIDEO_S, STATUS_SD_REMAINING_KB, STATUS_SD_STATUS, UNKNOWN_MODEL, CameraModel,
+    nearest_option,
+)
+
 PORT = 8080
 """HTTP port of the camera's API."""
 
 PREVIEW_UDP_PORT = 8554
 """Default UDP port of the framing preview stream."""
-
-STATUS_BUSY = 8
-"""Status id: system busy (loading presets, changing settings...)."""
-
-STATUS_ENCODING = 10
-"""Status id: encoding (recording video)."""
-
-SETTING_RESOLUTION = 2
-SETTING_FPS = 3
-SETTING_VIDEO_LENS = 121
-SETTING_ANTI_FLICKER = 134
-SETTING_HYPERSMOOTH = 135
-
-RESOLUTION_OPTIONS = {"4K": 1, "2.7K": 4, "2.7K_4:3": 6, "1080": 9, "4K_4:3": 18, "5.3K": 100}
-"""Video resolution (setting 2) options."""
-
-FPS_OPTIONS = {240: 0, 120: 1, 100: 2, 60: 5, 50: 6, 30: 8, 25: 9, 24: 10, 200: 13}
-"""Frames per second (setting 3) options (the camera records 240 as 240000/1001, etc.)."""
-
-LENS_OPTIONS = {"wide": 0, "narrow": 2, "superview": 3, "linear": 4, "linear_horizon_leveling": 8}
-"""Video lens (setting 121) options."""
-
-ANTI_FLICKER_OPTIONS = {"60Hz": 2, "50Hz": 3}
-"""Anti-flicker (setting 134) options (HERO9 to HERO12 values)."""
-
-HYPERSMOOTH_OFF = 0
-"""HyperSmooth (setting 135) option "off": stabilisation warps frames, so calibration needs it off."""
-
 
 class GoProError(RuntimeError):
     """Base class of GoPro errors."""
@@ -69,6 +58,14 @@ class GoProError(RuntimeError):
 
 class CameraUnreachable(GoProError):
     """No HTTP answer from the camera's address."""
+
+
+class SettingRefused(GoProError):
+    """The camera refused a setting (HTTP 403) and offered no close option."""
+
+
+class CameraNotReady(GoProError):
+    """The camera cannot record now (no SD card, card full, overheating, did not start...)."""
 
 
 class CameraBusy(GoProError):
@@ -81,6 +78,20 @@ class MediaNotFound(GoProError):
 
 class DownloadError(GoProError):
     """A download broke off; the partial file is kept for resuming."""
+
+
+class _Refused(GoProError):
+    """HTTP 403 from the camera; ``supported`` lists ``(option id, display name)`` it offered."""
+
+    def __init__(self, url: str, body: bytes):
+        try:
+            doc = json.loads(body or b"{}")
+        except json.JSONDecodeError:
+            doc = {}
+        offered = doc.get("supported_options") or [] if isinstance(doc, dict) else []
+        self.supported = [(int(o["id"]), str(o.get("display_name", o["id"]))) for o in offered
+                          if isinstance(o, dict) and "id" in o]
+        super().__init__(f"GoPro refused {url} (HTTP 403)")
 
 
 def address_from_serial(serial: str) -> str:
@@ -162,6 +173,9 @@ class GoPro:
             raise ValueError(f"keep_alive_s must be in (0, 3] seconds, got {keep_alive_s}")
         self.host, self.port, self.timeout_s, self.keep_alive_s = host, int(port), float(timeout_s), float(keep_alive_s)
         self.keep_alive_failures = 0
+        self.model: CameraModel | None = None
+        self.notes: list[str] = []
+        """Substitutions made for refused settings, one line each."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -192,6 +206,8 @@ class GoPro:
             raise CameraBusy(f"GoPro busy: {url} refused with HTTP {resp.status} {text}")
         if resp.status == 404:
             raise MediaNotFound(f"GoPro: {url} not found (HTTP 404)")
+        if resp.status == 403:
+            raise _Refused(url, body)
         raise GoProError(f"GoPro: {url} failed with HTTP {resp.status} {text}")
 
     def _json(self, path: str, **params) -> dict:
@@ -203,9 +219,24 @@ class GoPro:
 
     # ---------------------------------------------------------------- session
     def open(self) -> GoPro:
-        """Enable wired control and start the keep-alive thread."""
-        self.enable_wired_control(True)
+        """Claim wired control, learn the model, wait until ready and start the keep-alive thread.
+
+        Raises
+        ------
+        GoProError
+            When the camera refuses wired control (a HERO9 Black cannot be controlled over USB).
+        """
+        try:
+            self.enable_wired_control(True)
+        except (_Refused, MediaNotFound) as exc:
+            raise GoProError(f"GoPro at {self.host}:{self.port} refuses control over USB ({exc}); "
+                             "HERO9 Black and older cannot be controlled over USB: use HERO10 or later, "
+                             "or record without --gopro-serial and attach the video with capture.ingest") from None
         self.keep_alive()
+        self.model = self.camera_model()
+        if not self.model.wired_control:
+            raise GoProError(f"{self.model.name} cannot be controlled over USB (Open GoPro wired control "
+                             "needs HERO10 or later)")
         if self._thread is None:
             self._stop.clear()
             self._thread = threading.Thread(target=self._keep_alive_loop, name="gopro-keep-alive", daemon=True)
@@ -240,6 +271,22 @@ class GoPro:
         """Reset the camera's keep-alive timer (sent by the thread every ``keep_alive_s``)."""
         self._get("/gopro/camera/keep_alive")
 
+    def info(self) -> dict:
+        """``/gopro/camera/info``: ``model_number``, ``model_name``, ``firmware_version``, ``serial_number``..."""
+        return self._json("/gopro/camera/info")
+
+    def camera_model(self) -> CameraModel:
+        """The camera's model profile (:data:`~capture.gopro.models.MODELS`), from :meth:`info`.
+
+        A camera that does not answer ``/gopro/camera/info`` (older firmware) or a model not in
+        the table gives :data:`~capture.gopro.models.UNKNOWN_MODEL`, with HERO10–12 answers.
+        """
+        try:
+            number = int(self.info().get("model_number", 0))
+        except (MediaNotFound, ValueError, TypeError):
+            return UNKNOWN_MODEL
+        return MODELS.get(number, UNKNOWN_MODEL)
+
     # ---------------------------------------------------------------- state
     def state(self) -> dict:
         """Camera state: ``{"status": {int id: value}, "settings": {int id: value}}``."""
@@ -250,6 +297,26 @@ class GoPro:
         """True while the camera is encoding."""
         return bool(self.state()["status"].get(STATUS_ENCODING, 0))
 
+    def wait_state(self, want: dict[int, int], timeout_s: float, poll_s: float = 0.05) -> dict:
+        """Poll until every status id in ``want`` has its value; returns the last status.
+
+        Raises
+        ------
+        CameraBusy
+            When the statuses differ after ``timeout_s`` seconds.
+        """
+        t_end = time.monotonic() + timeout_s
+        while True:
+            status = self.state()["status"]
+            if all(bool(status.get(k, 0)) == bool(v) for k, v in want.items()):
+                return status
+            if time.monotonic() >= t_end:
+                names = {STATUS_BUSY: "busy", STATUS_ENCODING: "recording"}
+                what = " and ".join(("still " if status.get(k, 0) else "not ") + names.get(k, f"status {k}")
+                                    for k, v in want.items() if bool(status.get(k, 0)) != bool(v))
+                raise CameraBusy(f"GoPro at {self.host}:{self.port} {what} after {timeout_s:g} s")
+            time.sleep(poll_s)
+
     def wait_ready(self, timeout_s: float = 5.0, *, allow_encoding: bool = False, poll_s: float = 0.05) -> None:
         """Wait until the camera is neither busy nor (unless allowed) encoding.
 
@@ -258,77 +325,167 @@ class GoPro:
         CameraBusy
             When the camera stays busy for ``timeout_s`` seconds.
         """
-        t_end = time.monotonic() + timeout_s
-        while True:
-            status = self.state()["status"]
-            busy = bool(status.get(STATUS_BUSY, 0))
-            encoding = bool(status.get(STATUS_ENCODING, 0)) and not allow_encoding
-            if not busy and not encoding:
-                return
-            if time.monotonic() >= t_end:
-                what = "busy" if busy else "recording"
-                raise CameraBusy(f"GoPro at {self.host}:{self.port} still {what} after {timeout_s:g} s")
-            time.sleep(poll_s)
+        want = {STATUS_BUSY: 0} if allow_encoding else {STATUS_BUSY: 0, STATUS_ENCODING: 0}
+        self.wait_state(want, timeout_s, poll_s)
+
+    def health(self) -> list[str]:
+        """Pre-flight check before recording; returns warnings (low battery, little space).
+
+        Raises
+        ------
+        CameraNotReady
+            No SD card or an unusable one, a full card, an overheated or too cold camera.
+        """
+        status = self.state()["status"]
+        sd = int(status.get(STATUS_SD_STATUS, 0))
+        if sd not in (0, -1) or (sd == 0 and status.get(STATUS_SD_REMAINING_KB, 1) == 0):
+            raise CameraNotReady(f"GoPro SD card {SD_STATUS.get(sd, f'status {sd}') if sd else 'full'}: "
+                                 "insert or free a card before recording")
+        if status.get(STATUS_OVERHEATING, 0):
+            raise CameraNotReady("GoPro overheating: let it cool down before recording")
+        if status.get(STATUS_COLD, 0):
+            raise CameraNotReady("GoPro too cold to record")
+        warnings = []
+        pct = status.get(STATUS_BATTERY_PCT)
+        if pct is not None and int(pct) < 15:
+            warnings.append(f"GoPro battery at {int(pct)} %: connect it to power")
+        left_s = status.get(STATUS_REMAINING_VIDEO_S)
+        if left_s is not None and 0 < int(left_s) < 600:
+            warnings.append(f"GoPro card holds only {int(left_s) // 60} min of video at these settings")
+        return warnings
 
     # ---------------------------------------------------------------- control
-    def start_recording(self, timeout_s: float = 5.0) -> None:
-        """Start recording (shutter on) once the camera is ready."""
+    def load_video_preset_group(self, timeout_s: float = 5.0) -> None:
+        """Switch to the video preset group (in a photo or time-lapse preset, the shutter takes photos)."""
         self.wait_ready(timeout_s)
+        if self.state()["status"].get(STATUS_PRESET_GROUP) == PRESET_GROUP_VIDEO:
+            return
+        self._get("/gopro/camera/presets/set_group", id=PRESET_GROUP_VIDEO)
+        self.wait_ready(timeout_s)
+
+    def start_recording(self, timeout_s: float = 5.0) -> None:
+        """Start recording (in the video preset group) once the camera is ready, and confirm that it encodes.
+
+        Raises
+        ------
+        CameraNotReady
+            When the camera answers but does not start encoding within ``timeout_s`` (card full,
+            overheated, a photo preset...).
+        """
+        self.load_video_preset_group(timeout_s)
         self._get("/gopro/camera/shutter/start")
+        try:
+            self.wait_state({STATUS_ENCODING: 1}, timeout_s)
+        except CameraBusy:
+            raise CameraNotReady(f"GoPro at {self.host}:{self.port} accepted the shutter but is not recording "
+                                 f"after {timeout_s:g} s (SD card, temperature or preset?)") from None
 
-    def stop_recording(self, timeout_s: float = 5.0) -> None:
-        """Stop recording (shutter off)."""
-        self.wait_ready(timeout_s, allow_encoding=True)
+    def stop_recording(self, timeout_s: float = 10.0) -> None:
+        """Stop recording, then wait until encoding and busy have cleared (the file is complete)."""
         self._get("/gopro/camera/shutter/stop")
+        self.wait_state({STATUS_ENCODING: 0, STATUS_BUSY: 0}, timeout_s)
 
-    def set_setting(self, setting_id: int, option: int, timeout_s: float = 5.0) -> None:
-        """Set one setting by id and option id (refused while recording).
+    def set_setting(self, setting_id: int, option: int, timeout_s: float = 5.0) -> int:
+        """Set one setting; a refused option is replaced by the nearest one the camera offers.
+
+        Returns
+        -------
+        int
+            The option in effect (``option``, or the camera's nearest supported one).
 
         Raises
         ------
         CameraBusy
             When the camera is recording or stays busy.
+        SettingRefused
+            When the camera refuses the option and offers none close to it.
         """
         self.wait_ready(timeout_s)
-        self._get("/gopro/camera/setting", setting=int(setting_id), option=int(option))
+        try:
+            self._get("/gopro/camera/setting", setting=int(setting_id), option=int(option))
+            return int(option)
+        except _Refused as refused:
+            offered = refused.supported
+            near = nearest_option(setting_id, option, [i for i, _ in offered])
+            if near is None or near == option:
+                names = ", ".join(f"{n} ({i})" for i, n in offered) or "none listed"
+                raise SettingRefused(f"GoPro refused setting {setting_id} option {option}; "
+                                     f"it supports: {names}") from None
+        self.wait_ready(timeout_s)
+        self._get("/gopro/camera/setting", setting=int(setting_id), option=int(near))
+        self.notes.append(f"GoPro refused option {option} of setting {setting_id}; set "
+                          f"{dict(offered).get(near, near)} ({near}) instead")
+        return near
 
     def configure(self, *, resolution: str = "1080", fps: int = 240, lens: str = "linear",
-                  hypersmooth: bool = False, anti_flicker: str = "50Hz") -> None:
-        """Set the video settings used for ball capture.
+                  hypersmooth: bool = False, anti_flicker: str = "50Hz") -> dict[int, int]:
+        """Load the video preset group and set the video settings used for ball capture.
+
+        In order: video preset group; control mode "pro" on models that have it; resolution,
+        frame rate, lens, HyperSmooth, anti-flicker (the model's own option ids); auto power
+        down "never". Each setting is read back from the camera's state.
 
         Parameters
         ----------
         resolution : str
-            A key of :data:`RESOLUTION_OPTIONS` (``"1080"`` allows 240 fps on HERO10).
+            A key of :data:`~capture.gopro.models.RESOLUTION_OPTIONS`.
         fps : int
-            A key of :data:`FPS_OPTIONS` (up to 240).
+            A key of :data:`~capture.gopro.models.FPS_OPTIONS` (up to 240).
         lens : str
-            A key of :data:`LENS_OPTIONS`; ``"linear"`` removes most of the fisheye distortion.
+            A key of :data:`~capture.gopro.models.LENS_OPTIONS`; ``"linear"`` removes most of the
+            fisheye distortion.
         hypersmooth : bool
             Stabilisation; keep it off (it warps frames, breaking calibration).
         anti_flicker : str
             ``"50Hz"`` or ``"60Hz"``: the mains frequency of the hall lighting.
+
+        Returns
+        -------
+        dict[int, int]
+            Setting id -> option in effect, as read back.
+
+        Raises
+        ------
+        ValueError
+            For a value not in the tables.
+        GoProError
+            When a setting does not read back as set.
         """
         for name, table, key in (("resolution", RESOLUTION_OPTIONS, resolution), ("fps", FPS_OPTIONS, fps),
-                                 ("lens", LENS_OPTIONS, lens), ("anti_flicker", ANTI_FLICKER_OPTIONS, anti_flicker)):
+                                 ("lens", LENS_OPTIONS, lens)):
             if key not in table:
                 raise ValueError(f"GoPro {name}={key!r} not supported; choose one of {sorted(table, key=str)}")
-        self.set_setting(SETTING_RESOLUTION, RESOLUTION_OPTIONS[resolution])
-        self.set_setting(SETTING_FPS, FPS_OPTIONS[fps])
-        self.set_setting(SETTING_VIDEO_LENS, LENS_OPTIONS[lens])
-        self.set_setting(SETTING_HYPERSMOOTH, 1 if hypersmooth else HYPERSMOOTH_OFF)
-        self.set_setting(SETTING_ANTI_FLICKER, ANTI_FLICKER_OPTIONS[anti_flicker])
+        model = self.model if self.model is not None else self.camera_model()
+        wanted = [(SETTING_RESOLUTION, RESOLUTION_OPTIONS[resolution]), (SETTING_FPS, FPS_OPTIONS[fps]),
+                  (SETTING_VIDEO_LENS, LENS_OPTIONS[lens]), (SETTING_HYPERSMOOTH, 1 if hypersmooth else HYPERSMOOTH_OFF),
+                  (SETTING_ANTI_FLICKER, model.anti_flicker_option(anti_flicker)),
+                  (SETTING_AUTO_POWER_DOWN, AUTO_POWER_DOWN_NEVER)]
+        self.load_video_preset_group()
+        if model.control_mode:
+            wanted.insert(0, (SETTING_CONTROL_MODE, CONTROL_MODE_PRO))
+        done = {sid: self.set_setting(sid, opt) for sid, opt in wanted}
+        self.wait_ready()
+        back = self.state()["settings"]
+        wrong = {sid: back.get(sid) for sid, opt in done.items() if back.get(sid) != opt}
+        if wrong:
+            raise GoProError("GoPro settings did not read back as set: "
+                             + ", ".join(f"setting {sid} is {v}, not {done[sid]}" for sid, v in wrong.items()))
+        return done
 
     def set_date_time(self, when: _dt.datetime | None = None) -> None:
-        """Set the camera clock (default: now; a naive ``when`` is taken as local time)."""
+        """Set the camera clock (default: now; a naive ``when`` is taken as local time).
+
+        HERO9/10 take date and time only; later models also the time zone and daylight saving.
+        """
         when = when or _dt.datetime.now()
         if when.tzinfo is None:
             when = when.astimezone()
         offset = when.utcoffset() or _dt.timedelta(0)
         dst = bool(when.dst())
         tzone_min = int((offset - (when.dst() or _dt.timedelta(0))).total_seconds() // 60)
+        zone = {"tzone": tzone_min, "dst": int(dst)} if (self.model or UNKNOWN_MODEL).date_time_zone else {}
         self._get("/gopro/camera/set_date_time", date=f"{when.year}_{when.month}_{when.day}",
-                  time=f"{when.hour}_{when.minute}_{when.second}", tzone=tzone_min, dst=int(dst))
+                  time=f"{when.hour}_{when.minute}_{when.second}", **zone)
 
     def start_preview(self, port: int = PREVIEW_UDP_PORT) -> None:
         """Start the framing preview (UDP MPEG-TS to this host's ``port``); not while recording."""
@@ -394,6 +551,8 @@ class GoPro:
         """
         media = self._find(media) if isinstance(media, str) else media
         dest_dir = Path(dest_dir)
+        if dest_dir.exists() and not dest_dir.is_dir():
+            raise GoProError(f"GoPro download: {dest_dir} is a file, not a folder to download into")
         dest_dir.mkdir(parents=True, exist_ok=True)
         final = dest_dir / media.name
         part = dest_dir / (media.name + ".part")

@@ -20,7 +20,11 @@ import urllib.parse
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from capture.gopro.client import STATUS_BUSY, STATUS_ENCODING
+from capture.gopro.models import (
+    PRESET_GROUP_PHOTO, STATUS_BATTERY_PCT, STATUS_BUSY, STATUS_ENCODING,
+    STATUS_OVERHEATING, STATUS_PRESET_GROUP, STATUS_REMAINING_VIDEO_S, STATUS_SD_REMAINING_KB, STATUS_SD_STATUS,
+    CameraModel, model_by_name,
+)
 
 
 class FakeGoPro:
@@ -36,6 +40,21 @@ class FakeGoPro:
     busy_s : float
         After each shutter or setting command, the camera reports "busy" (status 8) and refuses
         commands with HTTP 503 for this many seconds.
+    model : str or CameraModel
+        The camera's model profile (``"HERO10"`` to ``"HERO13"``, or ``"HERO9"``, which refuses
+        wired control): model number in ``/gopro/camera/info``, the options it accepts (others
+        answer 403 with the supported options), ``tzone``/``dst`` refused on HERO9/10.
+    preset_group : int
+        Preset group at power-on (default: photo; there the shutter takes a photo).
+    finish_s : float
+        After the shutter stop, the camera keeps encoding this long (finishing the file) and the
+        new file is listed only then.
+    battery_pct, sd_status, sd_free_kb, overheating : int, int, int, bool
+        Health statuses (70, 33, 54, 6); ``sd_status=2`` is "no card", ``sd_free_kb=0`` a full
+        card: the shutter then does not start encoding.
+    ignore_settings : set of int
+        Fault injection: these settings answer 200 but keep their old option (a read-back
+        shows it).
     cut_after_bytes : int, optional
         Fault injection: the next media download closes the connection after this many bytes
         (once), to test resume.
@@ -61,7 +80,10 @@ class FakeGoPro:
     """
 
     def __init__(self, mp4_path, *, n_recordings: int = 1, busy_s: float = 0.0,
-                 cut_after_bytes: int | None = None, folder: str = "100GOPRO"):
+                 cut_after_bytes: int | None = None, folder: str = "100GOPRO", model="HERO12",
+                 preset_group: int = PRESET_GROUP_PHOTO, finish_s: float = 0.05, battery_pct: int = 80,
+                 sd_status: int = 0, sd_free_kb: int = 50_000_000, overheating: bool = False,
+                 ignore_settings=()):
         chapters = [Path(p) for p in (mp4_path if isinstance(mp4_path, (list, tuple)) else [mp4_path])]
         for p in chapters:
             if not p.is_file():
@@ -70,7 +92,17 @@ class FakeGoPro:
         self.folder = folder
         self.busy_s = float(busy_s)
         self.cut_after_bytes = cut_after_bytes
-        self.settings: dict[int, int] = {2: 9, 3: 5, 121: 0, 134: 2, 135: 1}
+        self.model: CameraModel = model if isinstance(model, CameraModel) else model_by_name(model)
+        self.settings: dict[int, int] = {2: 9, 3: 5, 121: 0, 134: self.model.anti_flicker["60Hz"], 135: 1, 59: 4}
+        if self.model.control_mode:
+            self.settings[175] = 0
+        self.preset_group = int(preset_group)
+        self.ignore_settings = set(ignore_settings)
+        self.finish_s = float(finish_s)
+        self.health = {STATUS_BATTERY_PCT: int(battery_pct), STATUS_SD_STATUS: int(sd_status),
+                       STATUS_SD_REMAINING_KB: int(sd_free_kb), STATUS_OVERHEATING: int(bool(overheating))}
+        self._finish_at = 0.0
+        self._pending: list[str] = []
         self.requests: list[str] = []
         self.keep_alive_times: list[float] = []
         self.wired_control = False
@@ -93,6 +125,18 @@ class FakeGoPro:
         self._next_number += 1
         for c, p in enumerate(self.chapters, start=1):
             self._media[f"GX{c:02d}{n:04d}.MP4"] = p
+
+    def _settle(self) -> None:
+        """List a stopped recording once its file is finished."""
+        if self._pending and time.monotonic() >= self._finish_at:
+            self._pending = []
+            self._add_recording()
+
+    @property
+    def can_record(self) -> bool:
+        """Whether the shutter would start encoding (a card present with space, not overheating)."""
+        h = self.health
+        return h[STATUS_SD_STATUS] == 0 and h[STATUS_SD_REMAINING_KB] > 0 and not h[STATUS_OVERHEATING]
 
     @property
     def busy(self) -> bool:
@@ -154,39 +198,70 @@ class FakeGoPro:
             self.keep_alive_times.append(time.monotonic())
             return self._reply(h, 200, {})
         if path == "/gopro/camera/state":
-            status = {str(STATUS_BUSY): int(self.busy), str(STATUS_ENCODING): int(self.encoding)}
+            self._settle()
+            finishing = time.monotonic() < self._finish_at
+            status = {str(STATUS_BUSY): int(self.busy), str(STATUS_ENCODING): int(self.encoding or finishing),
+                      str(STATUS_PRESET_GROUP): self.preset_group,
+                      str(STATUS_REMAINING_VIDEO_S): self.health[STATUS_SD_REMAINING_KB] // 45_000,
+                      **{str(k): v for k, v in self.health.items()}}
             return self._reply(h, 200, {"status": status, "settings": {str(k): v for k, v in self.settings.items()}})
+        if path == "/gopro/camera/info":
+            return self._reply(h, 200, {"model_number": self.model.number, "model_name": self.model.name,
+                                        "firmware_version": "fake", "serial_number": "C0000000000000",
+                                        "ap_mac_addr": "000000000000", "ap_ssid": "fake"})
         if path == "/gopro/media/list":
+            self._settle()
             fs = [{"n": n, "cre": str(int(p.stat().st_mtime)), "mod": str(int(p.stat().st_mtime)),
                    "s": str(p.stat().st_size)} for n, p in self._media.items()]
             return self._reply(h, 200, {"id": "fake", "media": [{"d": self.folder, "fs": fs}]})
         if path == "/gopro/camera/control/wired_usb":
+            if not self.model.wired_control:
+                return self._reply(h, 403, {"error": "wired control not supported"})
             self.wired_control = q.get("p") == "1"
-            return self._reply(h, 200, {})
-        if self.busy:
-            return self._reply(h, 503, {"error": "camera busy"})
-        if path == "/gopro/camera/shutter/start":
-            self.encoding = True
-            self._set_busy()
             return self._reply(h, 200, {})
         if path == "/gopro/camera/shutter/stop":
             if self.encoding:
                 self.encoding = False
-                self._add_recording()
+                self._finish_at = time.monotonic() + self.finish_s
+                self._pending = ["recording"]
+            self._set_busy()
+            return self._reply(h, 200, {})
+        if self.busy:  # everything but the shutter stop waits (the SDK sends the stop at once)
+            return self._reply(h, 503, {"error": "camera busy"})
+        if path == "/gopro/camera/shutter/start":
+            if self.preset_group == PRESET_GROUP_PHOTO:  # the shutter takes a photo
+                self._media[f"GOPR{self._next_number:04d}.JPG"] = self.chapters[0]
+                self._next_number += 1
+            elif self.can_record:
+                self.encoding = True
+            self._set_busy()
+            return self._reply(h, 200, {})
+        if path == "/gopro/camera/presets/set_group":
+            if self.encoding:
+                return self._reply(h, 403, {"error": "not while encoding"})
+            self.preset_group = int(q.get("id", self.preset_group))
             self._set_busy()
             return self._reply(h, 200, {})
         if path == "/gopro/camera/setting":
             if self.encoding:
                 return self._reply(h, 403, {"error": "setting not available while encoding"})
             try:
-                self.settings[int(q["setting"])] = int(q["option"])
+                setting, option = int(q["setting"]), int(q["option"])
             except (KeyError, ValueError):
                 return self._reply(h, 400, {"error": "bad setting query"})
+            supported = self.model.options.get(setting, ())
+            if option not in supported:
+                return self._reply(h, 403, {"error": 1, "setting_id": setting, "option_id": option,
+                                            "supported_options": [{"display_name": f"option {o}", "id": o}
+                                                                  for o in supported]})
+            if setting not in self.ignore_settings:
+                self.settings[setting] = option
             self._set_busy()
             return self._reply(h, 200, {})
         if path == "/gopro/camera/set_date_time":
             if not re.fullmatch(r"\d{4}_\d{1,2}_\d{1,2}", q.get("date", "")) or \
-                    not re.fullmatch(r"\d{1,2}_\d{1,2}_\d{1,2}", q.get("time", "")):
+                    not re.fullmatch(r"\d{1,2}_\d{1,2}_\d{1,2}", q.get("time", "")) or \
+                    (not self.model.date_time_zone and ("tzone" in q or "dst" in q)):
                 return self._reply(h, 400, {"error": "bad date/time"})
             self.date_time = q
             return self._reply(h, 200, {})

@@ -297,27 +297,55 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
 
 
 def _gopro_start(settings: RecordSettings, messages: list[str]):
-    """Configure the GoPro and start it recording; returns the media present before."""
+    """Prepare the GoPro and start it recording; returns the media present before.
+
+    Model, video preset, settings (read back) and health are checked first. A GoPro that cannot
+    record (refused, busy, no card...) is said in one line and the event recording goes on
+    without video: ``None`` is returned then.
+    """
+    from capture.gopro import GoProError
+
     gp = settings.gopro
-    gp.open()
-    gp.set_date_time()
-    if settings.gopro_settings:
-        gp.configure(**settings.gopro_settings)
-    before = {m.path for m in gp.media_list()}
-    gp.start_recording()
-    return before
+    try:
+        gp.open()
+        try:
+            gp.set_date_time()
+        except GoProError as exc:
+            messages.append(f"GoPro clock not set ({exc}); the video is aligned by the clock sync anyway")
+        if settings.gopro_settings:
+            gp.configure(**settings.gopro_settings)
+        messages.extend(gp.notes)
+        messages.extend(gp.health())
+        before = {m.path for m in gp.media_list()}
+        gp.start_recording(timeout_s=10.0)
+        return before
+    except GoProError as exc:
+        msg = f"GoPro not recording ({exc}); the event camera records without video"
+        messages.append(msg)
+        _log(settings, msg)
+        gp.close()
+        return None
 
 
 def _gopro_finish(settings: RecordSettings, before, out: Path, messages: list[str]) -> None:
-    """Stop the GoPro, download the new video into the session and align it to the event clock."""
+    """Stop the GoPro, wait for its file, download the new video into the session and align it.
+
+    The new video is what the card lists after the stop and did not list before it (not "the
+    last file"); its chapters are downloaded together.
+    """
     gp = settings.gopro
     try:
         gp.stop_recording()
-        new = [m for m in gp.media_list() if m.path not in before]
-        if not new:
+        new = [m for m in gp.media_list() if m.path not in before and m.recording is not None]
+        recordings = sorted({m.recording for m in new}, key=lambda r: r[1])
+        if not recordings:
             messages.append("the GoPro recorded no new video")
             return
-        paths = gp.download_recording(new[-1], out / GOPRO_DIR, progress=not settings.quiet)
+        if len(recordings) > 1:
+            messages.append(f"the GoPro card gained {len(recordings)} videos during the session; "
+                            "the first is attached")
+        first = next(m for m in new if m.recording == recordings[0])
+        paths = gp.download_recording(first, out / GOPRO_DIR, progress=not settings.quiet)
         sync = attach_video(out, paths[0], led_roi=settings.led_roi, exposure_s=settings.exposure_s)
         messages.append(f"GoPro video {paths[0].name}: {sync}")
     except Exception as exc:  # the event recording is safe; report the GoPro problem on one line
