@@ -55,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--gopro-serial", help="GoPro serial (its wired-USB address is derived from it)")
     ap.add_argument("--gopro-fps", type=int, default=240, help="GoPro frame rate (default 240)")
     ap.add_argument("--gopro-res", default="1080", help="GoPro resolution (default 1080)")
+    ap.add_argument("--mains", choices=["50Hz", "60Hz"], default="50Hz",
+                    help="mains frequency of the hall lighting, for the GoPro's anti-flicker (default 50Hz)")
     ap.add_argument("--exposure", type=float, metavar="S",
                     help="GoPro shutter time in seconds when locked, e.g. 0.002 (default: estimated)")
     ap.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
@@ -131,7 +133,7 @@ def _devices(args, out: Path):
         from capture.gopro import GoPro
 
         settings.gopro = GoPro(args.gopro_serial)
-        settings.gopro_settings = {"resolution": args.gopro_res, "fps": args.gopro_fps}
+        settings.gopro_settings = {"resolution": args.gopro_res, "fps": args.gopro_fps, "anti_flicker": args.mains}
     yield settings, None
 
 
