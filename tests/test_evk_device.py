@@ -156,10 +156,28 @@ def test_erc_rate_cap():
         cam.set_erc(4e9)
     cam.close()
     fake, cam = opened(sensor="gen31")
-    cam.set_erc(1e6)  # noise filter: 1000 kev/s over 1023 µs
+    n = len(fake.register_log())
+    with pytest.raises(evk.EvkError, match="Gen3.1 has no event rate controller"):
+        cam.set_erc(1e6)  # its NFL is an activity filter: as a cap it would blank quiet scenes
+    cam.set_erc(None)
+    assert not [e for e in fake.register_log()[n:] if e[0] == "W"]
+    cam.close()
+
+
+def test_gen31_activity_filter():
+    fake, cam = opened(sensor="gen31")
+    cam.set_activity_filter(1e6)  # NFL: drop events while below 1000 kev/s over 1023 µs
     assert fake.registers[0x24C] & 0x3FFF == 1023 and fake.registers[0x248] & 1
     cam.start()  # the start sequence turns the filter off; the driver turns it back on
     assert fake.registers[0x248] & 1
+    cam.set_activity_filter(None)
+    assert not fake.registers[0x248] & 1
+    with pytest.raises(ValueError, match="activity filter's 1e4..1e7 ev/s"):
+        cam.set_activity_filter(1e3)
+    cam.close()
+    fake, cam = opened()
+    with pytest.raises(evk.EvkError, match="IMX636 has no event-rate activity filter"):
+        cam.set_activity_filter(1e6)
     cam.close()
 
 
@@ -174,8 +192,11 @@ def test_trigger_in():
         cam.enable_trigger_in(channel=1)
     cam.close()
     fake, cam = opened(sensor="gen41")
+    n = len(fake.register_log())
     cam.enable_trigger_in()
     assert fake.registers[0x7004] & (1 << 10) and (fake.registers.get(0x44, 0) >> 12) & 0xF == 0xF
+    writes = [e for e in fake.register_log()[n:] if e[0] == "W"]
+    assert [w[2] for w in writes] == [0x0044, 0x7004]  # the HAL's order: pad, then enable
     cam.close()
 
 

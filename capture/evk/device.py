@@ -390,9 +390,22 @@ class Camera:
         self.sensor.set_roi(x, y, width, height)
 
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
-        """Cap the sensor's event rate (events/s) with its event rate controller (Gen3.1:
-        noise filter); ``None`` disables the cap."""
+        """Cap the sensor's event rate (events/s) with its event rate controller; ``None``
+        disables the cap. The EVK3 Gen3.1 has none and refuses a cap (:class:`EvkError`)."""
         self.sensor.set_erc(max_event_rate_ev_s)
+
+    def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
+        """Gen3.1 only: drop events while the rate is below ``min_event_rate_ev_s`` (its NFL);
+        ``None`` disables it.
+
+        Raises
+        ------
+        EvkError
+            On a sensor without this filter.
+        """
+        if not hasattr(self.sensor, "set_activity_filter"):
+            raise EvkError(f"the {self.sensor.name} has no event-rate activity filter")
+        self.sensor.set_activity_filter(min_event_rate_ev_s)
 
     def enable_trigger_in(self, enabled: bool = True, channel: int = 0) -> None:
         """Enable (or disable) the external trigger input; edges arrive as trigger events."""

@@ -320,16 +320,29 @@ class Gen31:
         self.run(tuple(ops) + s.ROI_APPLY)
 
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
-        """Gen3.1 has no ERC: this programs the noise filter (NFL), the only rate limiter the
-        HAL exposes on this board (10..10000 kev/s, 1023 µs window). ``None`` disables it."""
-        if max_event_rate_ev_s is None:
+        """Gen3.1 has no event rate controller: a cap is refused (``None`` is accepted, nothing to do).
+
+        Its only rate-based block, the NFL, is an activity filter (OpenEB's
+        ``I_EventRateActivityFilterModule`` with a lower bound): it drops events while the rate is
+        *below* its threshold, so using it as a cap would blank quiet scenes. It is
+        :meth:`set_activity_filter`.
+        """
+        if max_event_rate_ev_s is not None:
+            raise EvkError("the EVK3 Gen3.1 has no event rate controller, so no event-rate cap (--erc); "
+                           "its NFL is an activity filter that drops events while the rate is below a threshold")
+
+    def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
+        """Drop events while the sensor's rate is below ``min_event_rate_ev_s`` (the NFL,
+        10..10000 kev/s over a 1023 µs window): removes background noise in a still scene, and
+        everything in a quiet one. ``None`` disables it."""
+        if min_event_rate_ev_s is None:
             self.nfl_kev_s = None
             self.run((("RMW", seq_gen31.NFL_CTRL, 0, 1),))
             return
-        kev_s = max_event_rate_ev_s / 1000
+        kev_s = min_event_rate_ev_s / 1000
         if not 10 <= kev_s <= 10000:
             raise ValueError(
-                f"max_event_rate_ev_s={max_event_rate_ev_s} is outside the Gen3.1 noise filter's 1e4..1e7 ev/s"
+                f"min_event_rate_ev_s={min_event_rate_ev_s} is outside the Gen3.1 activity filter's 1e4..1e7 ev/s"
             )
         self.nfl_kev_s = kev_s
         self._nfl_on()

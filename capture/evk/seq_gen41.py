@@ -239,7 +239,7 @@ BIAS_REGISTERS = {
     "bias_refr": (0x1020, 0x14, 0x64),
 }
 
-TRIGGER_IN_ENABLE = (
-    ("RMW", 0x7004, 1 << 10, 1 << 10),
+TRIGGER_IN_ENABLE = (  # the HAL's order (Gen41TzTriggerEvent::enable): pad first, then the edf bit
     ("RMW", 0x0044, 0xF << 12, 0xF << 12),  # dig_pad2_ctrl [15:12] <- 0xF (Gen4.1 class only)
+    ("RMW", 0x7004, 1 << 10, 1 << 10),
 )
