@@ -47,6 +47,22 @@ def name_int(text: str) -> tuple[str, int]:
         raise argparse.ArgumentTypeError(f"{name}: {value!r} is not an integer") from None
 
 
+FLICKER_BANDS_HZ = {"50Hz": (90, 110), "60Hz": (110, 130)}
+"""Anti-flicker bands for the mains frequency: lights flicker at twice it."""
+
+
+def flicker_band(text: str) -> tuple[int, int]:
+    """argparse type: the event camera's anti-flicker band, ``50Hz`` / ``60Hz`` (the mains
+    frequency: 90-110 / 110-130 Hz) or ``LOW,HIGH`` in Hz."""
+    if text in FLICKER_BANDS_HZ:
+        return FLICKER_BANDS_HZ[text]
+    try:
+        low, high = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 50Hz, 60Hz or LOW,HIGH in Hz, got {text!r}") from None
+    return low, high
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer > 0."""
     try:

@@ -26,7 +26,7 @@ import sys
 import threading
 from pathlib import Path
 
-from capture.cliargs import box, name_int, run_command
+from capture.cliargs import box, flicker_band, name_int, run_command
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
 from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
 
@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sensor bias (IMX636: offset from the factory value); repeat for several")
     ap.add_argument("--roi", type=box, metavar="X,Y,WIDTH,HEIGHT", help="region of interest in pixels")
     ap.add_argument("--erc", type=float, metavar="EV_S", help="event-rate cap, events per second")
+    ap.add_argument("--anti-flicker", type=flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
+                    help="event camera: drop events of lights flickering in this band (mains frequency, or Hz)")
     ap.add_argument("--gopro-serial", help="GoPro serial (its wired-USB address is derived from it)")
     ap.add_argument("--gopro-fps", type=int, default=240, help="GoPro frame rate (default 240)")
     ap.add_argument("--gopro-res", default="1080", help="GoPro resolution (default 1080)")
@@ -121,7 +123,7 @@ def _devices(args, out: Path):
             yield settings, truth
         return
     settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=dict(args.bias),
-                              roi=args.roi, erc_ev_s=args.erc, max_duration_s=args.duration,
+                              roi=args.roi, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet)
     if args.fake:
         from capture.evk.fake import FakeEVK

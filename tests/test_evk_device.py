@@ -227,3 +227,56 @@ def test_configure_leaves_what_is_not_given():
     cam.configure(trigger_in=False)
     assert fake.register_log()[start:]  # False is given: the trigger input is written (disabled)
     cam.close()
+
+
+@pytest.mark.parametrize("sensor", ["imx636", "gen41"])
+def test_anti_flicker_register_traffic_is_the_hals(sensor):
+    # AntiFlickerFilter::enable (OpenEB): pipeline off; poll afk_flag_init_done (up to 3 reads);
+    # dt_fifo_wait_time = 1630; band as periods of 128 µs with the 50 % duty cycle; band-stop;
+    # hysteresis 6 / 4; pipeline on. Each field write is a read-modify-write.
+    fake, cam = opened(sensor=sensor)
+    n = len(fake.register_log())
+    cam.set_anti_flicker((90, 110))
+    log = [e[:1] + e[2:] for e in fake.register_log()[n:]]
+    assert log == [
+        ("W", 0xC000, 0b101),
+        ("R", 0xC0C4),  # done at the first read
+        ("R", 0xC0C0), ("W", 0xC0C0, 0x0A05A000 | 1630),
+        ("R", 0xC008), ("W", 0xC008, (9090 >> 7) | (11111 >> 7) << 8 | 8 << 16),
+        ("R", 0xC004), ("W", 0xC004, 0x34),  # invert [6] <- 0 (band-stop)
+        ("R", 0xC004), ("W", 0xC004, 0x34),  # counter_high [5:3] <- 6
+        ("R", 0xC004), ("W", 0xC004, 0x34),  # counter_low [2:0] <- 4
+        ("W", 0xC000, 0b001),
+    ]
+    assert cam.sensor.anti_flicker_hz == (90, 110)
+    cam.set_anti_flicker(None)
+    assert fake.registers[0xC000] == 0b101 and cam.sensor.anti_flicker_hz is None
+    with pytest.raises(ValueError, match="band 40..110 Hz is outside 50..520 Hz"):
+        cam.set_anti_flicker((40, 110))
+    cam.close()
+
+
+def test_anti_flicker_errors():
+    fake, cam = opened(registers={0xC0C4: 0})
+    with pytest.raises(evk.EvkError, match=r"anti-flicker did not report its initialisation done \(register 0xC0C4\)"):
+        cam.set_anti_flicker((90, 110))
+    assert fake.registers[0xC000] == 0b101  # left off
+    assert [e for e in fake.register_log() if e[0] == "R" and e[2] == 0xC0C4] == [("R", 0, 0xC0C4)] * 3  # as the HAL
+    cam.close()
+    fake, cam = opened(sensor="gen31")
+    with pytest.raises(evk.EvkError, match="Gen3.1 has no anti-flicker block"):
+        cam.set_anti_flicker((90, 110))
+    cam.close()
+
+
+def test_recorder_sets_anti_flicker_and_stores_it(shared_raw_dir, tmp_path):
+    from capture.cliargs import flicker_band
+    from capture.pipeline.record import RecordSettings, record_session
+    from capture.session import open_session
+
+    fake = FakeEVK(shared_raw_dir / "ros_codecs_evt3_trigger_1280x720.raw", pace="max")
+    record_session(RecordSettings(out=tmp_path / "s", backend=fake, quiet=True,
+                                  anti_flicker_hz=flicker_band("50Hz"), erc_ev_s=20e6))
+    assert fake.registers[0xC000] == 0b001 and fake.registers[0xC008] & 0xFFFF == (9090 >> 7) | (11111 >> 7) << 8
+    sensor = open_session(tmp_path / "s").attrs["sensor"]
+    assert sensor["anti_flicker_hz"] == [90, 110] and sensor["erc_ev_s"] == 20e6

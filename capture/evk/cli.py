@@ -31,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--erc", type=float, metavar="EV_S", help="cap the sensor's event rate, events per second")
     rec.add_argument("--bias", type=cliargs.name_int, action="append", default=[], metavar="NAME=VALUE",
                      help="sensor bias, repeatable (IMX636: offset from the factory trim)")
+    rec.add_argument("--anti-flicker", type=cliargs.flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
+                     help="drop events of lights flickering in this band (mains frequency, or Hz)")
     rec.add_argument("--trigger", action="store_true", default=None, help="enable the external trigger input")
     rec.add_argument("--roi", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
                      help="keep only this window, pixels")
@@ -60,7 +62,8 @@ def _record(args) -> None:
     backend = FakeEVK(args.fake, pace=args.speed) if args.fake else None
     with open(args.serial, backend=backend) as cam:
         print(cam)
-        cam.configure(biases=dict(args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger)
+        cam.configure(biases=dict(args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
+                      anti_flicker_hz=args.anti_flicker)
         stop = threading.Event()
         previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.set())
         try:

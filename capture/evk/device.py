@@ -343,9 +343,10 @@ class Camera:
     # ---- settings -------------------------------------------------------------------
     def configure(self, *, biases: dict[str, int] | None = None,
                   roi: tuple[int, int, int, int] | None = None,
-                  erc_ev_s: float | None = None, trigger_in: bool | None = None) -> None:
+                  erc_ev_s: float | None = None, trigger_in: bool | None = None,
+                  anti_flicker_hz: tuple[int, int] | None = None) -> None:
         """Apply the recording settings that are given, in this order: biases, ROI, event
-        rate cap, trigger input. A setting left ``None`` is not touched.
+        rate cap, anti-flicker, trigger input. A setting left ``None`` is not touched.
 
         Parameters
         ----------
@@ -356,6 +357,8 @@ class Camera:
             ``(x, y, width, height)`` in pixels for :meth:`set_roi`.
         erc_ev_s : float, optional
             Event rate cap for :meth:`set_erc`, events/s.
+        anti_flicker_hz : (int, int), optional
+            Flicker band for :meth:`set_anti_flicker`, Hz.
         trigger_in : bool, optional
             Enable (``True``) or disable (``False``) the external trigger input.
 
@@ -370,6 +373,8 @@ class Camera:
             self.set_roi(*roi)
         if erc_ev_s is not None:
             self.set_erc(erc_ev_s)
+        if anti_flicker_hz is not None:
+            self.set_anti_flicker(anti_flicker_hz)
         if trigger_in is not None:
             self.enable_trigger_in(trigger_in)
 
@@ -393,6 +398,19 @@ class Camera:
         """Cap the sensor's event rate (events/s) with its event rate controller; ``None``
         disables the cap. The EVK3 Gen3.1 has none and refuses a cap (:class:`EvkError`)."""
         self.sensor.set_erc(max_event_rate_ev_s)
+
+    def set_anti_flicker(self, band_hz: tuple[int, int] | None) -> None:
+        """Drop events of lights flickering within ``band_hz = (low, high)`` Hz (50..520), the
+        sensor's anti-flicker block (IMX636, Gen4.1); ``None`` switches it off.
+
+        Raises
+        ------
+        EvkError
+            On a sensor without it (Gen3.1).
+        """
+        if not hasattr(self.sensor, "set_anti_flicker"):
+            raise EvkError(f"the {self.sensor.name} has no anti-flicker block")
+        self.sensor.set_anti_flicker(band_hz)
 
     def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
         """Gen3.1 only: drop events while the rate is below ``min_event_rate_ev_s`` (its NFL);

@@ -69,6 +69,7 @@ class Imx636:
         self.factory_biases: dict[str, int] = {}
         self.biases: dict[str, int] = {}
         self.erc_count = seq_imx636.ERC_DEFAULT_COUNT
+        self.anti_flicker_hz: tuple[int, int] | None = None
 
     @classmethod
     def probe(cls, link: TzLink, device: int) -> bool:
@@ -168,6 +169,48 @@ class Imx636:
         bits = (1 << 1) | (1 << 5) | (1 << 6) | (1 << 10)
         value = (int(state) << 1) | (1 << 5) | (1 << 6) | (1 << 10)
         self.run((("RMW", 0x0004, value, bits), ("RMW", 0x0034, 0, 0x3)))
+
+    # ---- anti-flicker --------------------------------------------------------------------
+    def set_anti_flicker(self, band_hz: tuple[int, int] | None) -> None:
+        """Drop the events of lights flickering within ``band_hz = (low, high)`` (Hz, 50..520)
+        with the sensor's anti-flicker block (band-stop, 50 % duty cycle, hysteresis 6/4: the
+        HAL's defaults); ``None`` switches it off.
+
+        The HAL's register traffic (``AntiFlickerFilter::enable``): pipeline off, the
+        initialisation flag polled up to three times, then invalidation, band, mode and
+        hysteresis, pipeline on. A spinning textured ball also fires periodically (at its spin
+        rate times the texture's repeats): keep the band narrow around the lights' frequency
+        (twice the mains frequency).
+
+        Raises
+        ------
+        ValueError
+            A band outside 50..520 Hz or with low > high.
+        EvkError
+            The block does not report its initialisation done.
+        """
+        s = seq_imx636
+        self.run((("W", s.AFK_PIPELINE_CONTROL, 0b101),))
+        self.anti_flicker_hz = None
+        if band_hz is None:
+            return
+        low, high = (int(v) for v in band_hz)
+        if not s.AFK_BAND_HZ[0] <= low <= high <= s.AFK_BAND_HZ[1]:
+            raise ValueError(f"anti-flicker band {low}..{high} Hz is outside {s.AFK_BAND_HZ[0]}..{s.AFK_BAND_HZ[1]} Hz "
+                             "(or low > high)")
+        if not any(self.link.read_reg(self.device, s.AFK_INITIALIZATION) & (1 << 2) for _ in range(3)):
+            raise EvkError(f"{self.name} anti-flicker did not report its initialisation done (register 0xC0C4)")
+        min_period, max_period = int(1e6 / high) >> 7, int(1e6 / low) >> 7
+        d = s.AFK_DEFAULTS
+        self.run((
+            ("RMW", s.AFK_INVALIDATION, 1630, 0xFFF),
+            ("RMW", s.AFK_FILTER_PERIOD, min_period | max_period << 8 | d["inverted_duty_cycle"] << 16, 0xFFFFF),
+            ("RMW", s.AFK_PARAM, 0, 1 << 6),
+            ("RMW", s.AFK_PARAM, d["counter_high"] << 3, 0x7 << 3),
+            ("RMW", s.AFK_PARAM, d["counter_low"], 0x7),
+            ("W", s.AFK_PIPELINE_CONTROL, 0b001),
+        ))
+        self.anti_flicker_hz = (low, high)
 
     # ---- ERC ----------------------------------------------------------------------------
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:

@@ -235,6 +235,15 @@ ERC_MAX_COUNT = 640000
 ERC_DEFAULT_COUNT = 10000
 EDF_PIPELINE_CONTROL = 0x7000  # bit 1: 0 = EVT3, 1 = EVT2.1
 
+# Anti-flicker (AFK) block, OpenEB register map `afk/*` and AntiFlickerFilter::enable.
+AFK_PIPELINE_CONTROL = 0xC000  # 0b101 = off (also while configuring), 0b001 = on
+AFK_PARAM = 0xC004  # counter_low [2:0], counter_high [5:3], invert [6] (0 = band-stop)
+AFK_FILTER_PERIOD = 0xC008  # min_cutoff_period [7:0], max_cutoff_period [15:8] (128 µs units), inverted_duty_cycle [19:16]
+AFK_INVALIDATION = 0xC0C0  # dt_fifo_wait_time [11:0] (the HAL writes 1630 on the IMX636)
+AFK_INITIALIZATION = 0xC0C4  # afk_flag_init_done [2]
+AFK_BAND_HZ = (50, 520)  # the HAL's supported frequencies
+AFK_DEFAULTS = {"inverted_duty_cycle": 8, "counter_high": 6, "counter_low": 4}  # 50 % duty, hysteresis
+
 CHIP_ID_ADDRESS = 0x0014
 CHIP_ID = 0xA0401806
 VARIANT_ADDRESS = 0xF128  # bits [1:0]: 0 = IMX636, 2 = IMX646

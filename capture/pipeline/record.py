@@ -47,6 +47,8 @@ class RecordSettings:
         Named sensor biases.
     roi : tuple or None
         ``(x, y, width, height)`` px.
+    anti_flicker_hz : (int, int) or None
+        The event camera's anti-flicker band, Hz (stored in the session's sensor attributes).
     erc_ev_s : float or None
         Event-rate cap, ev/s.
     gopro : object or None
@@ -77,6 +79,7 @@ class RecordSettings:
     biases: dict = field(default_factory=dict)
     roi: tuple | None = None
     erc_ev_s: float | None = None
+    anti_flicker_hz: tuple[int, int] | None = None
     trigger_in: bool = True
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)
@@ -187,11 +190,12 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     try:
         info = camera.info
         camera.configure(biases=settings.biases, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
-                         trigger_in=settings.trigger_in or None)
+                         trigger_in=settings.trigger_in or None, anti_flicker_hz=settings.anti_flicker_hz)
         attrs = {"sensor": {"board": info.board, "sensor": info.sensor, "serial": info.serial,
                             "format": info.format, "firmware": info.firmware,
                             "width": info.width, "height": info.height,
-                            "biases": camera.get_biases()},
+                            "biases": camera.get_biases(), "erc_ev_s": settings.erc_ev_s,
+                            "anti_flicker_hz": settings.anti_flicker_hz},
                  "raw_file": RAW_NAME, **settings.attrs}
         writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
                                 flush_interval_s=settings.flush_interval_s)
