@@ -1,10 +1,14 @@
 """Discovery, open-time errors and settings (biases, ROI, ERC, trigger) through the fake."""
 
+import struct
+
 import pytest
 
 from capture import evk
 from capture.evk.fake import FakeEVK
-from capture.evk.treuzell import PROP_DEVICE_STREAM
+from capture.evk.treuzell import (
+    FLAG_WRITE, PROP_DEVICE_COMPATIBLE, PROP_DEVICE_ENABLE, PROP_DEVICE_NAME, PROP_DEVICE_STREAM,
+)
 
 
 def opened(**kw):
@@ -70,11 +74,50 @@ def test_gen31_wrong_fpga_id():
         evk.open(backend=FakeEVK(None, sensor="gen31", registers={0x800: 0x1C}))
 
 
-def test_streamer_devices_started_after_init_and_stopped_at_close():
-    fake, cam = opened(extra_devices=[("treuzell,streamer", "dma")])
-    assert fake.device_flags[(PROP_DEVICE_STREAM, 1)] == 1
+def _flag_writes(fake, n=0):
+    """(property, device, value) of the ENABLE / STREAM writes in the fake's log from entry n."""
+    out = []
+    for e in fake.log[n:]:
+        if e[0] == "prop" and e[1] & ~FLAG_WRITE in (PROP_DEVICE_ENABLE, PROP_DEVICE_STREAM) and e[1] & FLAG_WRITE:
+            out.append((e[1] & ~FLAG_WRITE, *struct.unpack("<II", e[2][:8])))
+    return out
+
+
+def test_auxiliary_devices_follow_the_hal():
+    # TzStreamer: STREAM=0 when built; TzUnknownDevice: ENABLE=1 when built; TzDeviceControl then
+    # starts every device but the sensor (STREAM=1), and at close stops them in reverse order,
+    # after which unknown devices get ENABLE=0. The temperature sensor is left alone.
+    fake, cam = opened(extra_devices=[("treuzell,streamer", "dma"), ("ti,tmp103", "temp"), ("acme,gizmo", "x")])
+    S, E = PROP_DEVICE_STREAM, PROP_DEVICE_ENABLE
+    assert _flag_writes(fake) == [(S, 1, 0), (E, 3, 1), (S, 1, 1), (S, 3, 1)]
+    n = len(fake.log)
     cam.close()
-    assert fake.device_flags[(PROP_DEVICE_STREAM, 1)] == 0
+    assert _flag_writes(fake, n) == [(S, 3, 0), (S, 1, 0), (E, 3, 0)]
+
+
+@pytest.mark.parametrize("faults", [
+    {(PROP_DEVICE_NAME, 0): "fail"},  # a name that fails after the compatible string answered
+    {(PROP_DEVICE_COMPATIBLE, 0): "echo", (PROP_DEVICE_NAME, 0): "echo"},  # answers echoing another id
+    {(PROP_DEVICE_COMPATIBLE, 1): "timeout"},  # no answer from an auxiliary device: it is skipped
+    {(PROP_DEVICE_STREAM, 1): "fail", (PROP_DEVICE_ENABLE, 2): "fail"},  # refusals of auxiliary devices
+])
+def test_enumeration_is_as_lenient_as_the_hal(faults):
+    fake, cam = opened(extra_devices=[("treuzell,streamer", "dma"), ("acme,gizmo", "x")], faults=faults)
+    assert cam.info.sensor == "IMX636" and cam.info.width == 1280
+    cam.start()
+    cam.stop()
+    cam.close()
+
+
+def test_compatible_failure_falls_back_to_the_name():
+    # Old firmware (treuzell-kernel 1.4.0) put the compatible string in the name.
+    fake = FakeEVK(None, faults={(PROP_DEVICE_COMPATIBLE, 0): "fail"})
+    fake.devices[0] = (("psee,ccam5_imx636",), "psee,ccam5_imx636")
+    with evk.open(backend=fake) as cam:
+        assert cam.info.sensor == "IMX636"
+    fake = FakeEVK(None, faults={(PROP_DEVICE_COMPATIBLE, 0): "fail", (PROP_DEVICE_NAME, 0): "fail"})
+    with pytest.raises(evk.EvkError, match="no supported sensor found"):
+        evk.open(backend=fake)
 
 
 def test_imx636_biases_are_offsets_from_factory_trim():

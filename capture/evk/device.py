@@ -21,6 +21,7 @@ from . import treuzell as tz
 from .errors import (
     EvkBusyError,
     EvkConnectionError,
+    EvkDisconnectedError,
     EvkError,
     EvkFirmwareError,
     EvkNotFoundError,
@@ -181,17 +182,41 @@ class _UsbSession:
             return None
 
     def enumerate(self) -> list[tuple[list[str], str]]:
-        """Treuzell devices: ``[(compatible strings, name)]`` by device id (section 2.7)."""
+        """Treuzell devices: ``[(compatible strings, name)]`` by device id (section 2.7).
+
+        As lenient as the HAL (``TzDeviceBuilder::get_build_fun``): a NAME that fails after
+        COMPATIBLE answered gives ``"device<i>"``; a COMPATIBLE that fails (refused, timed out)
+        falls back to the NAME strings (old firmware put the compatible string there); a device
+        answering neither is listed with no compatible string (and so never used).
+        """
         n = self.link.get_u32(tz.PROP_DEVICES)
         out = []
         for dev_id in range(n):
             try:
                 compatible = self.link.device_strings(tz.PROP_DEVICE_COMPATIBLE, dev_id)
-            except TreuzellError:
-                compatible = None  # old firmware: the compatible string is in the name
-            name_strings = self.link.device_strings(tz.PROP_DEVICE_NAME, dev_id)
-            out.append((compatible if compatible is not None else name_strings, " ".join(name_strings)))
+                name = " ".join(self._lenient(lambda: self.link.device_strings(tz.PROP_DEVICE_NAME, dev_id))
+                                or [f"device{dev_id}"])
+            except EvkDisconnectedError:
+                raise
+            except EvkError as exc:
+                compatible = self._lenient(lambda: self.link.device_strings(tz.PROP_DEVICE_NAME, dev_id))
+                if compatible is None:
+                    log.warning("%s: no compatible string from Treuzell device %d (%s); skipped", self.where,
+                                dev_id, exc)
+                    compatible = []
+                name = " ".join(compatible) or f"device{dev_id}"
+            out.append((compatible, name))
         return out
+
+    def _lenient(self, fn):
+        """``fn()``, or None when the board refuses or does not answer (never when it is gone)."""
+        try:
+            return fn()
+        except EvkDisconnectedError:
+            raise
+        except EvkError as exc:
+            log.debug("%s: %s", self.where, exc)
+            return None
 
     def release(self) -> None:
         if not getattr(self, "claimed", False):
@@ -324,15 +349,21 @@ class Camera:
             found = "; ".join(",".join(c) for c, _ in devices) or "none"
             raise EvkError(f"{session.where}: no supported sensor found (Treuzell devices: {found})")
         self.sensor = main
-        self._streamers = [i for i, (c, _) in enumerate(devices) if i != main.device and STREAMER in c]
-        others = [i for i, (c, _) in enumerate(devices)
-                  if i != main.device and STREAMER not in c and "ti,tmp103" not in c and not any(driver_for(x) for x in c)]
-        for dev_id in others:  # TzUnknownDevice: ENABLE at construction (section 2.7)
-            link.set_device_flag(tz.PROP_DEVICE_ENABLE, dev_id, True)
-        self._unknown = others
-        main.bring_up()
-        for dev_id in self._streamers:
-            link.set_device_flag(tz.PROP_DEVICE_STREAM, dev_id, True)
+        # As the HAL: devices are built in id order (a streamer is sent STREAM=0, an unknown
+        # device ENABLE=1, the sensor runs its open sequences), then every device but the
+        # sensor and the temperature sensor is started (STREAM=1); a refusal is only logged.
+        self._aux = [i for i, (c, _) in enumerate(devices)
+                     if i != main.device and "ti,tmp103" not in c and not any(driver_for(x) for x in c)]
+        self._unknown = [i for i in self._aux if STREAMER not in devices[i][0]]
+        for dev_id in range(len(devices)):
+            if dev_id == main.device:
+                main.bring_up()
+            elif dev_id in self._unknown:
+                self._device_flag(tz.PROP_DEVICE_ENABLE, dev_id, True)
+            elif dev_id in self._aux:
+                self._device_flag(tz.PROP_DEVICE_STREAM, dev_id, False)
+        for dev_id in self._aux:
+            self._device_flag(tz.PROP_DEVICE_STREAM, dev_id, True)
         self.info = DeviceInfo(
             serial=session.serial, board=session.board, sensor=main.name, width=main.width,
             height=main.height, format=main.event_format(), firmware=_version_str(session.firmware),
@@ -483,15 +514,19 @@ class Camera:
             except EvkError as exc:
                 log.warning("%s: failed to stop properly: %s", self._usb.where, exc)
             try:
-                for dev_id in reversed(self._streamers):
-                    self._usb.link.set_device_flag(tz.PROP_DEVICE_STREAM, dev_id, False)
+                for dev_id in reversed(self._aux):
+                    self._device_flag(tz.PROP_DEVICE_STREAM, dev_id, False)
                 self.sensor.destroy()
                 for dev_id in reversed(self._unknown):
-                    self._usb.link.set_device_flag(tz.PROP_DEVICE_ENABLE, dev_id, False)
+                    self._device_flag(tz.PROP_DEVICE_ENABLE, dev_id, False)
             except EvkError as exc:
                 log.warning("%s: destroy sequence failed: %s", self._usb.where, exc)
         finally:
             self._usb.release()
+
+    def _device_flag(self, prop: int, dev_id: int, on: bool) -> None:
+        """ENABLE / STREAM of an auxiliary device; a refusal or no answer is only logged (HAL)."""
+        self._usb._lenient(lambda: self._usb.link.set_device_flag(prop, dev_id, on))
 
     def __enter__(self) -> Camera:
         return self

@@ -204,6 +204,11 @@ class FakeEVK(usb.backend.IBackend):
         Register values overriding the sensor's defaults (e.g. a wrong chip id).
     extra_devices : sequence of (compatible, name)
         Additional Treuzell devices after device 0 (e.g. ``("treuzell,streamer", "dma")``).
+    faults : mapping of (int, int) to str
+        Fault injection per ``(Treuzell property, device id)``: ``"fail"`` answers with the
+        failure flag, ``"echo"`` echoes another device id, ``"timeout"`` never answers (the
+        read times out). Writes of ENABLE/STREAM are matched by their property without the
+        write flag.
     pause_after_bytes : (int, float), optional
         After serving that many bytes, the data endpoint is silent (timeouts) for that
         many seconds.
@@ -233,6 +238,7 @@ class FakeEVK(usb.backend.IBackend):
         bcd_device: int = 0x0310,
         registers: Mapping[int, int] | None = None,
         extra_devices: Sequence[tuple[str, str]] = (),
+        faults: Mapping[tuple[int, int], str] | None = None,
         pause_after_bytes: tuple[int, float] | None = None,
         stall_after_bytes: int | None = None,
         disconnect_after_bytes: int | None = None,
@@ -258,6 +264,7 @@ class FakeEVK(usb.backend.IBackend):
         self.bcd_device = bcd_device
         self.permission_denied = permission_denied
         self.busy = busy
+        self.faults = dict(faults or {})
         self.realtime_delays = realtime_delays
         self._kernel_driver = kernel_driver_active
         self.devices = [(spec["compatible"], spec["name"])] + [((c,), n) for c, n in extra_devices]
@@ -457,7 +464,9 @@ class FakeEVK(usb.backend.IBackend):
         if ep != EP_CTRL_OUT:
             raise _usb_error(-9, errno.EPIPE, "Pipe error")
         frame = bytes(data)
-        self._answers.append(self._answer(frame))
+        answer = self._answer(frame)
+        if answer is not None:  # None: a "timeout" fault, no answer at all
+            self._answers.append(answer)
         return len(frame)
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
@@ -492,6 +501,15 @@ class FakeEVK(usb.backend.IBackend):
 
         n_words = len(payload) // 4
         w = struct.unpack_from(f"<{n_words}I", payload) if n_words else ()
+        fault = self.faults.get((base, w[0])) if n_words and base != PROP_DEVICE_REG32 else None
+        if fault == "timeout":
+            self.log.append(("prop", prop, payload))
+            return None
+        if fault == "fail":
+            self.log.append(("prop", prop, payload))
+            return fail(payload[:4])
+        if fault == "echo":
+            payload = struct.pack("<I", w[0] + 1) + payload[4:]
         if base == PROP_DEVICE_REG32 and n_words >= 3:
             device, address = w[0], w[1]
             if device >= len(self.devices):

@@ -157,10 +157,11 @@ class TzLink:
     def device_strings(self, prop: int, device: int) -> list[str]:
         """NUL-separated strings of ``TZ_PROP_DEVICE_NAME`` / ``..._COMPATIBLE`` for ``device``."""
         payload = self.command(prop, words(device))
-        if len(payload) < 5 or struct.unpack_from("<I", payload)[0] != device or payload[-1] != 0:
+        if len(payload) < 5 or payload[-1] != 0:
             raise TreuzellError(
                 f"malformed string answer to 0x{prop:08X} for device {device} from {self.name}"
             )
+        # The HAL reads the strings whatever device id the answer echoes; so do we.
         return [s.decode("ascii", "replace") for s in payload[4:-1].split(b"\0")]
 
     def set_device_flag(self, prop: int, device: int, on: bool) -> None:
