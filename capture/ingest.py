@@ -26,7 +26,8 @@ import numpy as np
 
 from calib import store, sync
 from capture.cliargs import box, print_fields, run_command
-from capture.gopro import chapter_paths, read_video
+from capture.gopro import chapter_paths, gpmf, read_video
+from capture.gopro.mp4 import gpmf_samples
 from capture.raw import RawFormatError, RawReader, scan
 from capture.raw.stream import DEFAULT_CHUNK_BYTES
 from capture.session import create_session, open_session, update_session
@@ -117,7 +118,8 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
     mp4_path : path
         The MP4 (first chapter of a chaptered recording).
     exposure_s : float, optional
-        Frame exposure time, s (default: one frame period).
+        Frame exposure time, s (an override). Default: the median of the per-frame exposure in
+        the clip's GPMF metadata (``SHUT``) when it has some, else estimated by the sync fit.
     led_roi : tuple, optional
         Sync-box LED region ``(x0, y0, x1, y1)`` in frame pixels, half-open (default: found
         automatically as the most varying block of the frames).
@@ -137,17 +139,33 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
             shutil.copy2(p, target)
         first = first or target
     video = read_video(first)
+    source, notes = ("given" if exposure_s is not None else "estimated"), []
+    samples = gpmf_samples(first)
+    meta = gpmf.frame_metadata(*samples) if samples is not None else None
+    if meta is not None:
+        per_frame = meta.exposure_at(video.t_s - video.t_s[0])
+        if exposure_s is None:
+            exposure_s, source = float(np.median(per_frame)), "gpmf"
+            lo, hi = np.percentile(per_frame, [5, 95])
+            notes.append(f"exposure {exposure_s * 1e3:.3f} ms from the camera's metadata"
+                         + (f" (varies {lo * 1e3:.3f}-{hi * 1e3:.3f} ms)" if hi > 1.05 * lo else ""))
+        skipped = int(np.count_nonzero(meta.frame_skips))
+        if skipped:
+            notes.append(f"{skipped} frames skipped or duplicated by the camera (GPMF MSKP)")
     tm, exposure_s = fit_time_map(session_dir, video, exposure_s=exposure_s, led_roi=led_roi)
     writer = update_session(session_dir)
     store.attach_video(writer, session_dir, video, tm, exposure_s=exposure_s)
     writer.set_attrs(frame_camera={"model": "GoPro", "width": video.width, "height": video.height,
                                    "fps_num": video.fps_num, "fps_den": video.fps_den,
-                                   "n_frames": video.n_frames, "exposure_s": float(exposure_s)})
+                                   "n_frames": video.n_frames, "exposure_s": float(exposure_s),
+                                   "exposure_source": source,
+                                   "frame_skips": int(np.count_nonzero(meta.frame_skips)) if meta else None,
+                                   "readout": meta.readout if meta else None})
     writer.close()
     sigma = float(np.sqrt(max(tm.cov[0, 0], 0.0)))
     return (f"{video.n_frames} frames at {float(video.fps):.2f} fps aligned by {tm.method}: "
             f"video t=0 at event t={float(tm.to_event_us(0.0)) / 1e6:.6f} s, drift {tm.drift_ppm:+.1f} ppm, "
-            f"±{sigma:.0f} µs")
+            f"±{sigma:.0f} µs" + "".join(f"; {n}" for n in notes))
 
 
 def session_from_raw(raw_path, session_dir, mp4_path=None, *, progress: bool = True, led_roi=None,

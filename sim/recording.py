@@ -154,6 +154,7 @@ class Recording:
         has_frames = self.frames is not None and len(self.frames)
         if video and has_frames:
             paths["video"] = write_video(out / VIDEO_NAME, self.frames, self.truth["frames"]["fps"])
+            _add_camera_metadata(paths["video"], self.truth["frames"], len(self.frames))
         paths["truth"] = save_truth(out / TRUTH_NAME, self.truth)
         if session:
             from capture.session import create_session
@@ -206,3 +207,18 @@ class Recording:
             times = truth["frames"]["t_us"]
         trig = rf.triggers if len(rf.triggers) else np.zeros(0, TRIGGER_DTYPE)
         return cls(rf.events, trig, rf.width, rf.height, truth, frames, times)
+
+
+def _add_camera_metadata(mp4_path, frames_truth: dict, n_frames: int) -> None:
+    """Give the video GoPro's GPMF track: per-frame exposure (``SHUT``), frame skips (``MSKP``,
+    none) and ISO, one payload per second of frames, as a HERO camera writes them."""
+    from capture.gopro import gpmf
+    from capture.gopro.mp4 import add_gpmf_track
+
+    fps = float(frames_truth["fps"])
+    exposure = np.broadcast_to(np.asarray(frames_truth["exposure_s"], np.float64), (n_frames,))
+    per = max(int(round(fps)), 1)
+    payloads = [gpmf.camera_payload(exposure[i:i + per], iso=np.full(len(exposure[i:i + per]), 100),
+                                    frame_skips=np.zeros(len(exposure[i:i + per]), np.uint16))
+                for i in range(0, n_frames, per)]
+    add_gpmf_track(mp4_path, payloads, per / fps)

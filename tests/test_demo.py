@@ -36,6 +36,8 @@ def test_demo_records_analyses_and_reviews(demo):
     frames = s.frames()
     assert frames["video"] is not None and len(frames["t_us"]) > 5
     assert s.attrs["time_sync"]["method"] == "sync_box"
+    cam = s.attrs["frame_camera"]  # exposure read from the video's GPMF, not typed in
+    assert cam["exposure_source"] == "gpmf" and abs(cam["exposure_s"] - 1 / 240) < 1e-6 and cam["frame_skips"] == 0
     truth_t = np.asarray(s.attrs["demo"]["truth_frame_t_us"])
     assert len(frames["t_us"]) == len(truth_t)
     assert np.max(np.abs(frames["t_us"] - truth_t)) <= 500  # sync-box goal: 0.5 ms

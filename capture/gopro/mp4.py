@@ -1,8 +1,11 @@
-"""Small ISO-BMFF (MP4) box reader: per-frame presentation times of the video track.
+"""Small ISO-BMFF (MP4) box reader: per-frame presentation times of the video track, and the
+samples of GoPro's GPMF metadata track.
 
 Only the boxes needed for timing are read (``moov/trak/mdia/{mdhd,hdlr,minf/stbl/{stts,ctts}}``
 and ``edts/elst``); the media data (``mdat``) is skipped by seeking, so a 4 GB chapter costs a
-few kilobytes of reading.
+few kilobytes of reading. :func:`gpmf_samples` reads the ``gpmd`` track's samples (sizes,
+chunk offsets, sample-to-chunk); :func:`add_gpmf_track` appends such a track to an MP4 whose
+``moov`` comes last (what the simulator and the fake camera serve).
 """
 
 from __future__ import annotations
@@ -132,6 +135,23 @@ def _track(f, off: int, end: int, path: Path) -> dict:
                 info["tkhd_version"] = version
             elif kind == b"stts":
                 info["stts"] = _table(f, p0, p1, path, 2)[0]
+            elif kind == b"stsd":
+                info["codec"] = _read(f, p0 + 12, 4, path)
+            elif kind == b"stsz":
+                fixed, count = struct.unpack(">II", _read(f, p0 + 4, 8, path))
+                if fixed:
+                    info["stsz"] = np.full(count, fixed, np.int64)
+                else:
+                    if p0 + 12 + 4 * count > p1:
+                        raise MP4Error(f"{path}: 'stsz' at byte {p0} claims {count} entries, more than its box holds")
+                    info["stsz"] = np.frombuffer(_read(f, p0 + 12, 4 * count, path), ">u4").astype(np.int64)
+            elif kind == b"stsc":
+                info["stsc"] = _table(f, p0, p1, path, 3)[0].astype(np.int64)
+            elif kind == b"stco":
+                info["stco"] = _table(f, p0, p1, path, 1)[0][:, 0].astype(np.int64)
+            elif kind == b"co64":
+                count = struct.unpack(">I", _read(f, p0 + 4, 4, path))[0]
+                info["stco"] = np.frombuffer(_read(f, p0 + 8, 8 * count, path), ">u8").astype(np.int64)
             elif kind == b"ctts":
                 arr, version = _table(f, p0, p1, path, 2)
                 offs = arr[:, 1].astype(np.uint32)
@@ -205,3 +225,104 @@ def video_timing(path) -> VideoTiming:
             return VideoTiming(pts=pts, timescale=int(info["timescale"]), duration=int(deltas.sum()),
                                width=int(info.get("width", 0)), height=int(info.get("height", 0)))
     raise MP4Error(f"{path}: no video track")
+
+
+def _sample_offsets(info: dict, path: Path) -> np.ndarray:
+    """File offset of each sample from its chunk offsets, sample-to-chunk map and sizes."""
+    sizes, chunks, stsc = info["stsz"], info["stco"], info["stsc"]
+    per_chunk = np.zeros(len(chunks), np.int64)
+    for i, (first, n, _) in enumerate(stsc):
+        last = stsc[i + 1][0] - 1 if i + 1 < len(stsc) else len(chunks)
+        per_chunk[first - 1:last] = n
+    if per_chunk.sum() != len(sizes):
+        raise MP4Error(f"{path}: sample-to-chunk map covers {per_chunk.sum()} samples, 'stsz' {len(sizes)}")
+    chunk_of = np.repeat(np.arange(len(chunks)), per_chunk)
+    first_in_chunk = np.concatenate([[0], np.cumsum(per_chunk)[:-1]])
+    within = np.cumsum(sizes) - sizes - (np.cumsum(sizes) - sizes)[first_in_chunk[chunk_of]]
+    return chunks[chunk_of] + within
+
+
+def gpmf_samples(path):
+    """The GPMF samples of a GoPro MP4: ``(payloads, start_s, duration_s)``, or None without a
+    ``gpmd`` track.
+
+    Raises
+    ------
+    MP4Error
+        When the track's tables are malformed or point past the file.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        moov = next(((p0, p1) for kind, p0, p1 in _boxes(f, 0, size, path) if kind == b"moov"), None)
+        if moov is None:
+            raise MP4Error(f"{path}: no 'moov' box (not an MP4, or recording not finalised)")
+        for kind, p0, p1 in _boxes(f, *moov, path):
+            if kind != b"trak":
+                continue
+            info = _track(f, p0, p1, path)
+            if info.get("codec") != b"gpmd":
+                continue
+            if not all(k in info for k in ("stsz", "stco", "stsc", "stts", "timescale")):
+                raise MP4Error(f"{path}: GPMF track without its sample tables")
+            offsets = _sample_offsets(info, path)
+            stts = info["stts"]
+            dur = np.repeat(stts[:, 1].astype(np.int64), stts[:, 0].astype(np.int64))
+            if len(dur) != len(offsets):
+                raise MP4Error(f"{path}: GPMF 'stts' covers {len(dur)} samples, 'stsz' {len(offsets)}")
+            payloads = [_read(f, int(o), int(n), path) for o, n in zip(offsets, info["stsz"])]
+            start = np.concatenate([[0], np.cumsum(dur)[:-1]]) / float(info["timescale"])
+            return payloads, start, dur / float(info["timescale"])
+    return None
+
+
+def _box(kind: bytes, *parts: bytes) -> bytes:
+    body = b"".join(parts)
+    return struct.pack(">I4s", 8 + len(body), kind) + body
+
+
+def add_gpmf_track(path, payloads: list[bytes], sample_duration_s: float, timescale: int = 90_000) -> Path:
+    """Append a GPMF metadata track (``meta`` handler, ``gpmd`` samples of ``sample_duration_s``
+    each, one per chunk) to an MP4 whose ``moov`` is its last box; the video is left untouched.
+
+    Raises
+    ------
+    MP4Error
+        When the file's last box is not ``moov``.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        boxes = list(_boxes(f, 0, size, path))
+        kind, m0, m1 = boxes[-1]
+        if kind != b"moov":
+            raise MP4Error(f"{path}: 'moov' is not the last box; cannot append a metadata track")
+        moov_start = m0 - 8
+        moov = _read(f, m0, m1 - m0, path)
+    delta = int(round(sample_duration_s * timescale))
+    n = len(payloads)
+    data = b"".join(payloads)
+    offsets, pos = [], moov_start + 8  # the new mdat takes the old moov's place
+    for p in payloads:
+        offsets.append(pos)
+        pos += len(p)
+    duration = delta * n
+    tkhd = _box(b"tkhd", struct.pack(">IIIIII", 3, 0, 0, 99, 0, duration), b"\0" * 8,
+                struct.pack(">hhhh", 0, 0, 0, 0), struct.pack(">9I", 0x10000, 0, 0, 0, 0x10000, 0, 0, 0, 0x40000000),
+                struct.pack(">II", 0, 0))
+    mdhd = _box(b"mdhd", struct.pack(">IIIIIHH", 0, 0, 0, timescale, duration, 0x55C4, 0))
+    hdlr = _box(b"hdlr", struct.pack(">II4s", 0, 0, b"meta"), b"\0" * 12, b"GoPro MET\0")
+    dinf = _box(b"dinf", _box(b"dref", struct.pack(">II", 0, 1), _box(b"url ", struct.pack(">I", 1))))
+    stsd = _box(b"stsd", struct.pack(">II", 0, 1), _box(b"gpmd", b"\0" * 6, struct.pack(">H", 1)))
+    stts = _box(b"stts", struct.pack(">IIII", 0, 1, n, delta))
+    stsc = _box(b"stsc", struct.pack(">IIIII", 0, 1, 1, 1, 1))
+    stsz = _box(b"stsz", struct.pack(">III", 0, 0, n), struct.pack(f">{n}I", *(len(p) for p in payloads)))
+    stco = _box(b"stco", struct.pack(">II", 0, n), struct.pack(f">{n}I", *offsets))
+    trak = _box(b"trak", tkhd, _box(b"mdia", mdhd, hdlr, _box(b"minf", _box(b"nmhd", struct.pack(">I", 0)), dinf,
+                                                            _box(b"stbl", stsd, stts, stsc, stsz, stco))))
+    with open(path, "r+b") as f:
+        f.seek(moov_start)
+        f.truncate()
+        f.write(_box(b"mdat", data))
+        f.write(_box(b"moov", moov, trak))
+    return path

@@ -58,7 +58,7 @@ def demo_devices(out, *, viewer: str = "none", speed: str = "recorded", quiet: b
                 out=Path(out), backend=FakeEVK(raw_path, pace=speed), viewer=viewer, quiet=quiet,
                 gopro=GoPro(host=fake_gopro.host, port=fake_gopro.port),
                 gopro_settings={"resolution": "1080", "fps": 120},
-                led_roi=tuple(truth["sync"]["led_box_px"]), exposure_s=float(truth["frames"]["exposure_s"]),
+                led_roi=tuple(truth["sync"]["led_box_px"]),  # the exposure comes from the video's GPMF
                 attrs={"demo": {"truth_rps": float(truth["rps"]),
                                 "truth_axis": [float(v) for v in truth["axis"]],
                                 "truth_frame_t_us": [int(v) for v in truth["frames"]["t_us"]]}})

@@ -1,0 +1,54 @@
+"""GPMF metadata: KLV reading and writing, the MP4 metadata track, per-frame exposure."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from capture.gopro import gpmf, read_video, video_timing, write_video
+from capture.gopro.mp4 import MP4Error, add_gpmf_track, gpmf_samples
+
+
+def test_klv_round_trip_nested_scaled_and_padded():
+    data = gpmf.build("DEVC", "\0", gpmf.build("DVNM", "c", b"Cam") + gpmf.build(
+        "STRM", "\0", gpmf.build("SCAL", "S", [1000]) + gpmf.build("SHUT", "S", [1, 2, 3])))
+    assert len(data) % 4 == 0
+    (devc,) = gpmf.parse(data)
+    assert devc.key == "DEVC" and devc.type == "\0"
+    name, strm = devc.value
+    assert name.value == b"Cam"
+    assert [i.key for i in strm.value] == ["SCAL", "SHUT"] and list(strm.value[1].value) == [1, 2, 3]
+    meta = gpmf.frame_metadata([data], np.array([0.0]), np.array([0.03]))
+    np.testing.assert_allclose(meta.exposure_s, [0.001, 0.002, 0.003])  # SCAL divides
+    np.testing.assert_allclose(meta.t_s, [0.0, 0.01, 0.02])
+
+
+def test_malformed_payload_is_named():
+    bad = struct.pack(">4scBH", b"SHUT", b"f", 4, 100) + b"\0" * 8
+    with pytest.raises(gpmf.GPMFError, match=r"'SHUT'|b'SHUT'"):
+        gpmf.parse(bad)
+
+
+def test_metadata_track_in_an_mp4_leaves_the_video_untouched(tmp_path):
+    frames = [np.full((32, 48), 10 * i, np.uint8) for i in range(20)]
+    path = write_video(tmp_path / "clip.mp4", frames, fps=240)
+    before = video_timing(path)
+    exposure = np.linspace(0.5e-3, 2.0e-3, 20)  # auto-exposure ramping over the clip
+    skips = np.zeros(20, np.uint16)
+    skips[7] = 1
+    payloads = [gpmf.camera_payload(exposure[i:i + 10], iso=np.full(10, 200), frame_skips=skips[i:i + 10],
+                                    readout=4.5) for i in (0, 10)]
+    add_gpmf_track(path, payloads, 10 / 240)
+    assert np.array_equal(video_timing(path).pts, before.pts)
+    assert read_video(path).n_frames == 20
+    got, start, dur = gpmf_samples(path)
+    assert got == payloads
+    np.testing.assert_allclose(start, [0, 10 / 240], atol=1e-4)
+    meta = gpmf.frame_metadata(got, start, dur)
+    np.testing.assert_allclose(meta.exposure_at(np.arange(20) / 240), exposure, rtol=1e-6)
+    assert list(np.nonzero(meta.frame_skips)[0]) == [7] and meta.iso[0] == 200
+    assert meta.readout == pytest.approx(4.5)
+    with open(path, "ab") as f:
+        f.write(struct.pack(">I4s", 8, b"free"))
+    with pytest.raises(MP4Error, match="'moov' is not the last box"):
+        add_gpmf_track(path, payloads, 10 / 240)
