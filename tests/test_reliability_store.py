@@ -36,8 +36,14 @@ class SmallDisk:
         self.root, self.capacity, self.failures = root, capacity, 0
         real_put = zarr.storage._local._put
 
+        def size(f, written):
+            try:
+                return f.stat().st_size if f.is_file() and f != written else 0
+            except FileNotFoundError:  # a file being renamed by a writer beside this one
+                return 0
+
         def put(path, value, exclusive=False):
-            used = sum(f.stat().st_size for f in self.root.rglob("*") if f.is_file() and f != path)
+            used = sum(size(f, path) for f in self.root.rglob("*"))
             if used + len(value.as_buffer_like()) > self.capacity:
                 self.failures += 1
                 raise OSError(errno.ENOSPC, "No space left on device", str(path))

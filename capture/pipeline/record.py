@@ -64,7 +64,8 @@ class RecordSettings:
     min_free_bytes : int
         Stop recording when the disk has less free space.
     flush_interval_s : float
-        Longest wall time between commits of the session store (what a crash can lose).
+        Longest wall time between commits of the session store, s. What a kill loses is this
+        plus the time to decode and write it (``bench/kill_bench.py`` measures the store's lag).
     quiet : bool
         No status line or progress bars.
     attrs : dict
@@ -85,7 +86,7 @@ class RecordSettings:
     viewer: str = "none"
     max_duration_s: float | None = None
     min_free_bytes: int = 500 * 2**20
-    flush_interval_s: float = 0.5
+    flush_interval_s: float = 0.2
     quiet: bool = False
     attrs: dict = field(default_factory=dict)
 
@@ -105,15 +106,16 @@ class RecordResult:
 
 
 class _Status(threading.Thread):
-    """Every ``period_s``: prints a status line, commits the store if due (``flush``), and stops the
-    recording when the disk is nearly full."""
+    """Every ``tick_s`` commits the store if due (``flush``, also while no data arrives); every
+    ``period_s`` prints a status line and stops the recording when the disk is nearly full."""
 
     def __init__(self, settings: RecordSettings, counters: dict, live, stop: threading.Event,
-                 period_s: float = 0.5, flush=None):
+                 period_s: float = 0.5, flush=None, tick_s: float = 0.05):
         super().__init__(name="status", daemon=True)
         self.settings, self.counters, self.live, self.stop_event = settings, counters, live, stop
         self.flush = flush
         self.period_s = period_s
+        self.tick_s = tick_s
         self.done = threading.Event()
         self.tty = sys.stderr.isatty()
         self.reason: str | None = None
@@ -121,13 +123,15 @@ class _Status(threading.Thread):
     def run(self) -> None:
         t_start = time.monotonic()
         last_n, last_t = 0, t_start
-        while not self.done.wait(self.period_s):
+        while not self.done.wait(self.tick_s):
+            if self.flush is not None:
+                self.flush()
             now = time.monotonic()
+            if now - last_t < self.period_s:
+                continue
             n = self.counters["events"]
             rate = (n - last_n) / max(now - last_t, 1e-9)
             last_n, last_t = n, now
-            if self.flush is not None:
-                self.flush()
             try:
                 free = disk_free_bytes(self.settings.out)
             except OSError as exc:  # the disk went away: stop rather than write into nothing
