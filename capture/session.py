@@ -727,7 +727,7 @@ class Session:
         self._counts[name] = n
         return n
 
-    def _column(self, name: str, column: str, i0: int, i1: int, step: int | None = None) -> np.ndarray:
+    def read_column(self, name: str, column: str, i0: int, i1: int, step: int | None = None) -> np.ndarray:
         """Rows ``i0:i1[:step]`` of a column; a damaged chunk (checksum, decompression or file
         error) raises :class:`SessionError` naming the column and the chunk's rows."""
         arr = self.root[name][column]
@@ -772,13 +772,13 @@ class Session:
         n = self.n_events
         if n == 0:
             return 0.0
-        return (int(self._column("events", "t", n - 1, n)[0]) - int(self._column("events", "t", 0, 1)[0])) * 1e-6
+        return (int(self.read_column("events", "t", n - 1, n)[0]) - int(self.read_column("events", "t", 0, 1)[0])) * 1e-6
 
     def _read(self, name: str, columns, i0: int = 0, i1: int | None = None) -> dict[str, np.ndarray]:
         n = self._n(name)
         i1 = n if i1 is None else min(i1, n)
         group = self.root[name] if name in self.root else None
-        return {c: (self._column(name, c, i0, i1) if group is not None and c in group else None) for c in columns}
+        return {c: (self.read_column(name, c, i0, i1) if group is not None and c in group else None) for c in columns}
 
     def events_range(self, i0: int, i1: int) -> np.ndarray:
         """Committed events with index ``i0 <= i < i1`` as an EVENT_DTYPE array."""
@@ -801,13 +801,13 @@ class Session:
             k = t_us // 1000 - int(index.attrs["t0_ms"])
             if k < 0:
                 return 0
-            lo = int(self._column("index", "ms_to_idx", min(k, k_max - 1), min(k, k_max - 1) + 1)[0])
+            lo = int(self.read_column("index", "ms_to_idx", min(k, k_max - 1), min(k, k_max - 1) + 1)[0])
             if k + 1 < k_max:
-                hi = int(self._column("index", "ms_to_idx", k + 1, k + 2)[0])
+                hi = int(self.read_column("index", "ms_to_idx", k + 1, k + 2)[0])
             lo, hi = min(lo, n), min(hi, n)  # the index may be committed past our n
         if hi <= lo:
             return lo
-        t = self._column("events", "t", lo, hi)
+        t = self.read_column("events", "t", lo, hi)
         return lo + int(np.searchsorted(t, t_us, side="left"))
 
     def events(self, t_start_us: int | None = None, t_end_us: int | None = None) -> np.ndarray:

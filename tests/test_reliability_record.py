@@ -11,6 +11,7 @@ import pytest
 from capture import raw
 from capture.evk.fake import FakeEVK
 from capture.pipeline.record import RecordSettings, record_session
+from capture.replay import main as replay_main
 from capture.run import main as run_main
 from capture.session import RESERVE_NAME, open_session
 from test_reliability_store import SmallDisk
@@ -114,6 +115,9 @@ def test_corrupted_words_do_not_stop_the_recording(shared_raw_dir, tmp_path, cap
     # the RAW file keeps every byte, damaged words included
     header_size = raw.parse_header((out / "events.raw").read_bytes())[1]
     assert (out / "events.raw").read_bytes()[header_size:] == payload
+    # replay says what the store lacks
+    assert replay_main([str(out), "--quiet", "--workers", "1"]) == 0
+    assert f"{n_left_out} events left out as out of time order" in capsys.readouterr().err
 
 
 def test_empty_out_is_a_usage_error(tmp_path, capsys, monkeypatch):
