@@ -451,8 +451,8 @@ class SessionWriter:
         if self.closed:
             return
         failure = self.write_error if self._not_held else None
-        for write in (self._write_triggers, self._write_all):  # each part on its own: triggers are small
-            try:
+        for write in (self._write_triggers, self._write_all, self._write_in_pieces):
+            try:  # each part on its own: triggers are small, and pieces of events may fit
                 write()
             except OSError as exc:
                 failure = exc
@@ -476,6 +476,11 @@ class SessionWriter:
         if lost:
             raise SessionWriteError(f"{self.path}: {' and '.join(lost)} could not be stored ({reason}); "
                                     "the session is closed and marked with what is missing")
+
+    def _write_in_pieces(self, piece: int = TABLE_CHUNK) -> None:
+        """Commit the held events a piece at a time (as many as the disk takes)."""
+        while self._buffered:
+            self._write_events(min(piece, self._buffered))
 
     def _release_reserve(self) -> None:
         if self._reserve is not None:
@@ -764,6 +769,10 @@ class Session:
             lost = self.root[table].attrs.get("lost")
             if lost:
                 notes.append(f"{lost[2]} {table} from index {lost[0]} on were not stored ({lost[3]})")
+        raw_error = (self.attrs.get("recording") or {}).get("raw_write_error")
+        if raw_error:
+            notes.append(f"the recording stopped when its RAW file could not be written ({raw_error}); the RAW "
+                         "file may hold events after the store's last one")
         return "; ".join(notes) or None
 
     @property

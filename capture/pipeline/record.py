@@ -188,6 +188,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     writer = live = review = gopro_media = stats = None
     counters = {"events": 0, "triggers": 0, "drops": 0}
     write_error: list[BaseException] = []
+    raw_error = False
     reason = "error"
     device_error: str | None = None
     lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
@@ -249,6 +250,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             reason = "device error"
         except OSError as exc:  # the RAW file could not be written (disk full): finalise the store
             _write_failed(exc)
+            raw_error = True
         finally:
             status.done.set()
             status.join()
@@ -267,13 +269,17 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                 messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
                                 "(lost data on the link, or idle periods)")
     finally:
-        store_error = _finalise(writer, live, review, stats, reason, lock, messages)
+        store_error = _finalise(writer, live, review, stats, reason, lock, messages,
+                                raw_write_error=str(write_error[0]) if raw_error else None)
         camera.close()
         if gopro_media is not None:
             _gopro_finish(settings, gopro_media, out, messages)
 
     if write_error and not store_error:
-        store_error = f"write error: {' '.join(str(write_error[0]).split())}; every event received is in the store"
+        what = " ".join(str(write_error[0]).split())
+        store_error = (f"{RAW_NAME} could not be written ({what}); the store holds the {counters['events']} events "
+                       "decoded before it" if raw_error else
+                       f"write error: {what}; every event received is in the store")
     return RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
                         live.state.skipped_events, reason, messages=messages,
                         error=device_error or store_error)
@@ -289,9 +295,12 @@ def _flush_if_due(writer, lock: threading.Lock, on_error) -> None:
         on_error(exc)
 
 
-def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str]) -> str | None:
+def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str],
+              raw_write_error: str | None = None) -> str | None:
     """Stop live analysis and viewer, then flush, describe and close the session store; the
-    one-line error when the store could not hold everything (or could not be closed)."""
+    one-line error when the store could not hold everything (or could not be closed).
+    ``raw_write_error``: the RAW file could not be written; the store is marked as possibly
+    behind it (``recording.raw_write_error``)."""
     if live is not None:
         live.close()
         if live.error is not None:
@@ -309,6 +318,8 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
         recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
                          gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
                          payload_bytes=int(stats.payload_bytes))
+    if raw_write_error:
+        recording["raw_write_error"] = " ".join(raw_write_error.split())
     if writer.n_out_of_order:
         recording["out_of_order_events"] = int(writer.n_out_of_order)
         messages.append(f"{writer.n_out_of_order} events with times out of order (corrupted words) left out "
