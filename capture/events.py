@@ -107,6 +107,55 @@ def is_sorted(events: np.ndarray) -> bool:
     return bool(t.size < 2 or np.all(t[1:] >= t[:-1]))
 
 
+
+def in_order_mask(t_us: np.ndarray, floor_us: int | None = None) -> np.ndarray:
+    """Which events to keep so that the times are non-decreasing, leaving out as few as a
+    local rule can (a corrupted time word puts a short run of events out of line).
+
+    Events below ``floor_us`` (the last time already kept before this batch) are left out.
+    Of the rest, every maximal run of indices involved in an inversion is repaired by leaving
+    out either the events that are later than some event after them ("high") or those earlier
+    than some event before them ("low"), whichever are fewer in that run. A run is bounded by
+    events later than all before and earlier than all after them, so the runs' repairs are
+    independent.
+
+    Parameters
+    ----------
+    t_us : ndarray of int64, shape (N,)
+        Event times, µs.
+    floor_us : int, optional
+        Least time allowed, µs (None: no floor).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True for the events kept; ``t_us[mask]`` is non-decreasing and ``>= floor_us``.
+    """
+    t = np.asarray(t_us, dtype=np.int64)
+    keep = np.ones(len(t), dtype=bool)
+    if floor_us is not None:
+        keep &= t >= floor_us
+    idx = np.flatnonzero(keep)
+    u = t[idx]
+    if len(u) < 2 or np.all(u[1:] >= u[:-1]):
+        return keep
+    before_max = np.maximum.accumulate(u)  # max of u[:i+1]
+    low = np.zeros(len(u), dtype=bool)
+    low[1:] = u[1:] < before_max[:-1]
+    after_min = np.minimum.accumulate(u[::-1])[::-1]  # min of u[i:]
+    high = np.zeros(len(u), dtype=bool)
+    high[:-1] = u[:-1] > after_min[1:]
+    flagged = (low | high).astype(np.int8)
+    edges = np.diff(np.concatenate(([0], flagged, [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    n_low = np.add.reduceat(low, starts) if len(starts) else np.zeros(0, int)
+    n_high = np.add.reduceat(high, starts) if len(starts) else np.zeros(0, int)
+    drop = np.zeros(len(u), dtype=bool)
+    for a, b, nl, nh in zip(starts.tolist(), ends.tolist(), n_low.tolist(), n_high.tolist()):
+        drop[a:b] = low[a:b] if nl <= nh else high[a:b]
+    keep[idx[drop]] = False
+    return keep
+
 # -- tables ------------------------------------------------------------------------------------
 
 TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {

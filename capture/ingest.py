@@ -79,7 +79,7 @@ def _event_times_sample(session, max_events: int = 5_000_000) -> np.ndarray:
     """Event times (µs) of the session, every k-th event when there are more than ``max_events``."""
     n = session.n_events
     step = max(1, n // max_events)
-    return np.asarray(session.root["events"]["t"][:n:step])
+    return np.asarray(session.read_column("events", "t", 0, n, step))
 
 
 def fit_time_map(session_dir, video, *, exposure_s: float | None = None, led_roi=None):

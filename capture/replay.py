@@ -15,6 +15,7 @@ import numpy as np
 from capture.cliargs import box, positive_int, run_command
 from capture.ingest import session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
+from capture.session import open_session
 
 PROG = "python -m capture.replay"
 
@@ -59,6 +60,9 @@ def _run(args) -> None:
             print(note)
     else:
         session_path = src
+    damage = open_session(session_path).damage
+    if damage:
+        print(f"note: {session_path}: {damage}", file=sys.stderr)
     opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
                          step_us=args.step_us, method=args.method, workers=args.workers)
     result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)

@@ -69,7 +69,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.out is not None and not args.out.strip():
+        parser.error("--out: the session directory must not be empty")
     out = Path(args.out or _dt.datetime.now().strftime("session_%Y%m%d_%H%M%S"))
     stop = threading.Event()
 

@@ -15,11 +15,33 @@ Every table is a group of arrays sharing their first axis plus an attribute
 ``n_committed``; readers never look past it. A writer killed mid-append
 therefore leaves a store whose committed prefix is intact (Zarr's local store
 writes each file atomically). Metadata is consolidated when a session is closed.
+
+Nothing is lost silently:
+
+- every chunk carries a CRC-32C checksum (Zarr's ``crc32c`` codec; stores written before
+  it was added still open), and :func:`open_session` checks that every committed chunk is
+  there, so a damaged store is reported with the damaged column and row range
+  (:class:`SessionError`) instead of being read as zeros;
+- a write that fails (disk full) keeps the events in memory, committed by a later write or
+  at :meth:`SessionWriter.close`; if they still cannot be written, the closed store says so
+  in ``events.attrs["lost"]`` (``[index, t_us, events, reason]``: the events from store index
+  ``index`` on, first time ``t_us``, are not in the store) and ``close`` raises
+  :class:`SessionWriteError`. A small reserve file (``.reserve``) is given up then, so
+  that the store can still be closed on a full disk;
+- events whose times go backwards (a corrupted time word on the link) are left out of the
+  store, counted and placed in ``events.attrs["out_of_order"]`` (``[index, t_us, events]``
+  per damaged run: before store index ``index``, after time ``t_us``; the RAW file keeps
+  their bytes) and ``events.attrs["n_out_of_order"]``;
+- the root ``zarr.json`` is written last when a session is created, with all its
+  attributes at once: a kill before it leaves a directory that :func:`open_session` names as
+  an unfinished creation and that :func:`create_session` reuses.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import itertools
 import json
 import os
 import time
@@ -32,16 +54,21 @@ import warnings
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.codecs.numcodecs import Delta
 
-from capture.events import EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table, spin_table
+from capture.events import (EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table,
+                            in_order_mask, spin_table)
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
 warnings.filterwarnings("ignore", message="Consolidated metadata is currently not", category=UserWarning)
 # A session directory also holds non-Zarr files (the RAW byte stream, the GoPro video).
 warnings.filterwarnings("ignore", message="Object at .* is not recognized as a component", category=UserWarning)
+
+# Every chunk is written, also an all-zero one (Zarr skips those by default): a missing chunk is
+# then damage, never "zeros", and open_session can say so.
+zarr.config.set({"array.write_empty_chunks": True})
 
 SCHEMA_VERSION = 1
 SESSION_KIND = "courtside-spin session"
@@ -54,8 +81,21 @@ _EVENT_COLUMNS = {"t": ("<i8", ()), "x": ("<u2", ()), "y": ("<u2", ()), "p": ("i
 _TRIGGER_COLUMNS = {"t": ("<i8", ()), "id": ("u1", ()), "p": ("i1", ())}
 
 
+RESERVE_NAME = ".reserve"
+"""Space set aside in a session being recorded, given up to close the store on a full disk."""
+RESERVE_BYTES = 1 << 20
+MAX_HELD_EVENTS = 1 << 24
+"""Events kept in memory after a write error (for a retry at close); more are counted as lost."""
+MAX_DAMAGE_ENTRIES = 1000
+"""Out-of-order runs placed individually in the store (all are counted)."""
+
+
 class SessionError(Exception):
-    """A path is not a usable session (missing, not a session, newer schema, ...)."""
+    """A path is not a usable session (missing, not a session, newer schema, damaged, ...)."""
+
+
+class SessionWriteError(OSError):
+    """The store could not be written (disk full, I/O error); the message says what is kept."""
 
 
 def _software_version() -> str:
@@ -66,9 +106,10 @@ def _software_version() -> str:
 
 
 def _codecs(name: str, dtype: str):
-    compressor = BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle")
+    # zstd level 1: the size of level 3 on event columns (2.5 bytes/event) at twice the speed
+    compressors = [BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle"), Crc32cCodec()]
     filters = [Delta(dtype=dtype)] if name in ("t", "t_us") else None
-    return filters, compressor
+    return filters, compressors
 
 
 def _columns_of(rows, fields: Mapping) -> dict[str, np.ndarray]:
@@ -88,6 +129,16 @@ def _columns_of(rows, fields: Mapping) -> dict[str, np.ndarray]:
     return out
 
 
+_COLUMN_WRITERS = ThreadPoolExecutor(4, thread_name_prefix="session-columns")
+
+
+def _table_group(parent: zarr.Group, name: str) -> zarr.Group:
+    """A table's group; a new one is created with ``n_committed = 0`` in its first metadata write."""
+    if name in parent:
+        return parent[name]
+    return parent.create_group(name, attributes={"n_committed": 0})
+
+
 class _Table:
     """Writer side of one table: arrays sharing the first axis plus ``n_committed``."""
 
@@ -99,24 +150,53 @@ class _Table:
             if name in group:
                 self.arrays[name] = group[name]
             else:
-                filters, compressor = _codecs(name, dtype)
+                filters, compressors = _codecs(name, dtype)
                 self.arrays[name] = group.create_array(
                     name, shape=(0, *tail), chunks=(chunk, *tail), dtype=dtype,
-                    filters=filters, compressors=compressor, fill_value=0)
-        if "n_committed" not in group.attrs:
+                    filters=filters, compressors=compressors, fill_value=0)
+        if "n_committed" not in group.attrs:  # a table made by an older version
             group.attrs["n_committed"] = 0
         self.n = int(group.attrs["n_committed"])
 
-    def append(self, cols: Mapping[str, np.ndarray]) -> None:
+    def append(self, cols: Mapping[str, np.ndarray], **attrs) -> None:
+        """Write rows, then commit them (and ``attrs``) in one metadata write. On an OSError
+        nothing is committed and the space of the rows written so far is given back."""
         m = len(next(iter(cols.values())))
-        if m == 0:
+        if m == 0 and not attrs:
             return
         n_new = self.n + m
-        for name, arr in self.arrays.items():
+
+        def write(name: str) -> None:
+            arr = self.arrays[name]
             arr.resize((n_new, *arr.shape[1:]))
             arr[self.n:n_new] = np.asarray(cols[name], dtype=arr.dtype)
+
+        try:
+            if m:  # the columns are encoded and written side by side (the codecs release the GIL)
+                futures = [_COLUMN_WRITERS.submit(write, name) for name in self.arrays]
+                for f in futures:  # all done before a failure is raised (and rolled back)
+                    f.exception()
+                for f in futures:
+                    f.result()
+            self.group.attrs.update({"n_committed": n_new, **attrs})
+        except OSError:
+            self._roll_back()
+            raise
         self.n = n_new
-        self.group.attrs["n_committed"] = n_new
+
+    def mark(self, **attrs) -> None:
+        """Write attributes with the committed row count (a failed commit may have left another
+        count in the group's cached metadata)."""
+        self.group.attrs.update({"n_committed": self.n, **attrs})
+
+    def _roll_back(self) -> None:
+        """Drop the chunks past the committed rows (best effort: the disk may be full)."""
+        for arr in self.arrays.values():
+            try:
+                if arr.shape[0] > self.n:
+                    arr.resize((self.n, *arr.shape[1:]))
+            except OSError:
+                pass
 
     def replace(self, cols: Mapping[str, np.ndarray]) -> None:
         self.group.attrs["n_committed"] = 0
@@ -126,33 +206,47 @@ class _Table:
         self.append(cols)
 
 
+REPAIR_TAIL = 1 << 16
+"""Events of the last uncommitted batch that take part in repairing a batch whose times go back."""
+
+
 class SessionWriter:
     """The one writer of a session. Use :func:`create_session` or :func:`update_session`.
 
     Events are buffered and written in whole chunks of :data:`EVENT_CHUNK`; the
     buffer is also flushed (committed) at least every ``flush_interval_s``
     seconds of wall time, so a crash loses at most that much.
+
+    A failed write raises :class:`SessionWriteError` once; from then on events and
+    triggers are held in memory (up to :data:`MAX_HELD_EVENTS`) and written, or recorded
+    as lost, by :meth:`close`.
     """
 
-    def __init__(self, root: zarr.Group, path: Path, flush_interval_s: float = 1.0):
+    def __init__(self, root: zarr.Group, path: Path, flush_interval_s: float = 1.0,
+                 reserve: Path | None = None):
         self.root = root
         self.path = path
         self.flush_interval_s = flush_interval_s
-        self._events = _Table(root.require_group("events"), _EVENT_COLUMNS, EVENT_CHUNK)
-        self._triggers = _Table(root.require_group("triggers"), _TRIGGER_COLUMNS, TABLE_CHUNK)
-        index = root.require_group("index")
-        if "ms_to_idx" not in index:
-            filters, compressor = _codecs("ms_to_idx", "<i8")
-            index.create_array("ms_to_idx", shape=(0,), chunks=(TABLE_CHUNK,), dtype="<i8",
-                               compressors=compressor, fill_value=0)
-            index.attrs["n_committed"] = 0
-        self._index = index
+        self._reserve = reserve
+        self._events = _Table(_table_group(root, "events"), _EVENT_COLUMNS, EVENT_CHUNK)
+        self._triggers = _Table(_table_group(root, "triggers"), _TRIGGER_COLUMNS, TABLE_CHUNK)
+        self._index = _index_arrays(_table_group(root, "index"))
+        self._index_n = int(self._index.attrs["n_committed"])
+        self._t0_ms = self._index.attrs.get("t0_ms")
         self._buffer: list[np.ndarray] = []
         self._buffered = 0
+        self._pending_triggers: list[np.ndarray] = []
+        self._pending_index: list[tuple[int, np.ndarray]] = []
         self._last_flush = time.monotonic()
-        self._last_t = None
+        self._committed_last_t = None
         if self._events.n:
-            self._last_t = int(self._events.arrays["t"][self._events.n - 1])
+            self._committed_last_t = int(self._events.arrays["t"][self._events.n - 1])
+        self._last_t = self._committed_last_t
+        attrs = self._events.group.attrs
+        self._damage = list(attrs.get("out_of_order", []))
+        self.n_out_of_order = int(attrs.get("n_out_of_order", 0))
+        self.write_error: OSError | None = None
+        self._not_held = 0  # events received after a write error beyond MAX_HELD_EVENTS
         self.closed = False
 
     # -- events -----------------------------------------------------------------------------
@@ -162,53 +256,120 @@ class SessionWriter:
         return self._events.n + self._buffered
 
     def append_events(self, events: np.ndarray) -> None:
-        """Queue a batch of EVENT_DTYPE events (t non-decreasing, also across batches)."""
+        """Queue a batch of EVENT_DTYPE events (times non-decreasing, also across batches).
+
+        Events whose times go back (a corrupted time word) are left out of the store and
+        recorded as damage (:attr:`n_out_of_order`, ``events.attrs["out_of_order"]``).
+
+        Raises
+        ------
+        SessionWriteError
+            The first time a write fails (the events stay held for :meth:`close`).
+        """
         events = np.asarray(events)
         if events.dtype != EVENT_DTYPE:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
         if len(events):
             t = events["t"]
             if (self._last_t is not None and t[0] < self._last_t) or np.any(t[1:] < t[:-1]):
-                raise ValueError("event timestamps must be non-decreasing across appends")
-            self._last_t = int(t[-1])
+                events = self._repair(events)
+        if len(events):
+            if self.write_error is not None and self._buffered + len(events) > MAX_HELD_EVENTS:
+                self._not_held += len(events)
+                return
+            self._last_t = int(events["t"][-1])
             self._buffer.append(events)
             self._buffered += len(events)
+        if self.write_error is not None:
+            return
         aligned = (self._events.n + self._buffered) // EVENT_CHUNK * EVENT_CHUNK
         if aligned > self._events.n:
-            self._write_events(aligned - self._events.n)
+            self._guarded(self._write_events, aligned - self._events.n)
         self.flush_if_due()
+
+    def _repair(self, events: np.ndarray) -> np.ndarray:
+        """The batch, joined to the tail of the last uncommitted one, with the events out of
+        time order left out (and recorded)."""
+        prev = self._buffer.pop() if self._buffer else events[:0]
+        self._buffered -= len(prev)
+        kept_prev = prev[:max(0, len(prev) - REPAIR_TAIL)]
+        if len(kept_prev):
+            self._buffer.append(kept_prev)
+            self._buffered += len(kept_prev)
+        floor = int(self._buffer[-1]["t"][-1]) if self._buffer else self._committed_last_t
+        seg = concatenate([prev[len(kept_prev):], events])
+        keep = in_order_mask(seg["t"], floor)
+        dropped = np.flatnonzero(~keep)
+        if len(dropped):
+            base = self._events.n + self._buffered  # store index of seg[0]
+            starts = dropped[np.flatnonzero(np.diff(dropped, prepend=-2) != 1)]
+            sizes = np.diff(np.append(np.flatnonzero(np.diff(dropped, prepend=-2) != 1), len(dropped)))
+            kept_before = np.cumsum(keep) - keep
+            t_kept = seg["t"][keep]
+            for s, k in zip(starts.tolist(), sizes.tolist()):
+                j = int(kept_before[s])
+                t_at = int(t_kept[j - 1]) if j else (floor if floor is not None else -1)
+                if len(self._damage) < MAX_DAMAGE_ENTRIES:
+                    self._damage.append([base + j, t_at, k])
+            self.n_out_of_order += len(dropped)
+        return seg[keep]
+
+    def _guarded(self, write, *args) -> None:
+        """Run a store write; on the first OSError hold everything and say so."""
+        try:
+            write(*args)
+        except OSError as exc:
+            self.write_error = exc
+            raise SessionWriteError(f"{self.path}: session store write failed ({exc}); "
+                                    f"{self._buffered} events held in memory") from exc
 
     def _write_events(self, count: int) -> None:
         data = concatenate(self._buffer)
-        head, tail = data[:count], data[count:]
+        self._buffer = [data] if len(data) else []
+        head = data[:count]
+        n0 = self._events.n
+        extra = {"out_of_order": self._damage, "n_out_of_order": self.n_out_of_order} if self.n_out_of_order else {}
+        self._events.append({name: head[name] for name in _EVENT_COLUMNS}, **extra)
+        tail = data[count:]
         self._buffer = [tail] if len(tail) else []
         self._buffered = len(tail)
-        n0 = self._events.n
-        self._events.append({name: head[name] for name in _EVENT_COLUMNS})
-        self._extend_index(head["t"], n0)
+        if len(head):
+            self._committed_last_t = int(head["t"][-1])
+            self._pending_index.append((n0, head["t"]))
+        self._extend_index()
 
-    def _extend_index(self, t_new: np.ndarray, n0: int) -> None:
-        """Add the ms-index entries that the new events make final."""
+    def _extend_index(self) -> None:
+        """Add the ms-index entries that the committed events make final (the committed count
+        and origin are kept here: a failed write may leave others in the group's cached metadata)."""
         idx_arr = self._index["ms_to_idx"]
-        k = int(self._index.attrs["n_committed"])
-        if "t0_ms" not in self._index.attrs:
-            self._index.attrs["t0_ms"] = int(t_new[0] // 1000)
-        t0_ms = int(self._index.attrs["t0_ms"])
-        last_ms = int(t_new[-1] // 1000)
-        ms = np.arange(t0_ms + k, last_ms + 1, dtype=np.int64)
-        if len(ms) == 0:
-            return
-        entries = n0 + np.searchsorted(t_new, ms * 1000, side="left")
-        idx_arr.resize((k + len(ms),))
-        idx_arr[k:] = entries
-        self._index.attrs["n_committed"] = k + len(ms)
+        while self._pending_index:
+            n0, t_new = self._pending_index[0]
+            k = self._index_n
+            t0_ms = self._t0_ms if self._t0_ms is not None else int(t_new[0] // 1000)
+            ms = np.arange(t0_ms + k, int(t_new[-1] // 1000) + 1, dtype=np.int64)
+            if len(ms):
+                entries = n0 + np.searchsorted(t_new, ms * 1000, side="left")
+                idx_arr.resize((k + len(ms),))
+                idx_arr[k:] = entries
+                self._index.attrs.update({"n_committed": k + len(ms), "t0_ms": t0_ms})
+                self._index_n, self._t0_ms = k + len(ms), t0_ms
+            self._pending_index.pop(0)
 
     def append_triggers(self, triggers: np.ndarray) -> None:
-        """Append and commit TRIGGER_DTYPE events."""
+        """Append and commit TRIGGER_DTYPE events (held, like events, after a write error)."""
         triggers = np.asarray(triggers)
         if triggers.dtype != TRIGGER_DTYPE:
             raise TypeError(f"triggers must have TRIGGER_DTYPE, got {triggers.dtype}")
-        self._triggers.append({name: triggers[name] for name in _TRIGGER_COLUMNS})
+        if len(triggers):
+            self._pending_triggers.append(triggers)
+        if self.write_error is None:
+            self._guarded(self._write_triggers)
+
+    def _write_triggers(self) -> None:
+        if self._pending_triggers:
+            data = concatenate(self._pending_triggers, TRIGGER_DTYPE)
+            self._triggers.append({name: data[name] for name in _TRIGGER_COLUMNS})
+            self._pending_triggers = []
 
     def flush_if_due(self) -> None:
         """Flush when ``flush_interval_s`` has passed since the last flush."""
@@ -216,14 +377,20 @@ class SessionWriter:
             self.flush()
 
     def flush(self) -> None:
-        """Write and commit every buffered event."""
+        """Write and commit every buffered event (nothing after a write error: see :meth:`close`)."""
+        if self.write_error is None:
+            self._guarded(self._write_all)
+        self._last_flush = time.monotonic()
+
+    def _write_all(self) -> None:
         if self._buffered:
             self._write_events(self._buffered)
-        self._last_flush = time.monotonic()
+        self._extend_index()
+        self._write_triggers()
 
     # -- tables and attributes ----------------------------------------------------------------
     def _table(self, name: str, columns: Mapping[str, tuple[str, tuple]]) -> _Table:
-        return _Table(self.root.require_group(name), columns, TABLE_CHUNK)
+        return _Table(_table_group(self.root, name), columns, TABLE_CHUNK)
 
     def append_track(self, track) -> None:
         """Append ball-track rows (mapping or object with the ``capture.events.TRACK_COLUMNS``)."""
@@ -250,12 +417,12 @@ class SessionWriter:
             images = np.asarray(images, dtype=np.uint8)
             columns["image"] = ("u1", images.shape[1:])
             cols["image"] = images
-        table = _Table(self.root.require_group("frames"), columns, 1 if images is not None else TABLE_CHUNK)
+        table = _Table(_table_group(self.root, "frames"), columns, 1 if images is not None else TABLE_CHUNK)
         table.append(cols)
 
     def set_video(self, relpath: str, t_us) -> None:
         """Reference a video file (path relative to the session) with its frame times (µs, event clock)."""
-        frames = self.root.require_group("frames")
+        frames = _table_group(self.root, "frames")
         frames.attrs["video"] = str(relpath)
         _Table(frames, {"t_us": ("<i8", ())}, TABLE_CHUNK).replace({"t_us": np.asarray(t_us, np.int64)})
 
@@ -265,20 +432,77 @@ class SessionWriter:
         self.root.attrs.update(attrs)
 
     # -- life cycle ---------------------------------------------------------------------------
-    def close(self) -> None:
-        """Flush, mark the session closed and consolidate its metadata."""
+    def close(self, **attrs) -> None:
+        """Flush, mark the session closed (root ``attrs`` written with the mark) and consolidate
+        its metadata.
+
+        After a write error the held events and triggers are written now (the reserve file is
+        given up first if the retry fails); those that still cannot be are recorded as lost
+        (``events.attrs["lost"]``, ``triggers.attrs["lost"]``), the store is closed, and
+        :class:`SessionWriteError` says what is missing.
+
+        Raises
+        ------
+        SessionWriteError
+            Something received could not be stored (the store is closed and says what).
+        OSError
+            The store could not even be closed (it still opens: its committed prefix is intact).
+        """
         if self.closed:
             return
-        self.flush()
-        self.root.attrs["closed"] = True
+        failure = self.write_error if self._not_held else None
+        for write in (self._write_triggers, self._write_all, self._write_in_pieces):
+            try:  # each part on its own: triggers are small, and pieces of events may fit
+                write()
+            except OSError as exc:
+                failure = exc
+        self._release_reserve()
+        lost = []
+        if failure is not None:
+            n_held = self._buffered + self._not_held
+            t_first = int(self._buffer[0]["t"][0]) if self._buffer else -1
+            reason = " ".join(str(failure).split())
+            if n_held:
+                self._events.mark(lost=[self._events.n, t_first, n_held, reason])
+                lost.append(f"{n_held} events from index {self._events.n} (t = {t_first} µs) on")
+            n_trig = sum(len(t) for t in self._pending_triggers)
+            if n_trig:
+                self._triggers.mark(lost=[self._triggers.n, -1, n_trig, reason])
+                lost.append(f"{n_trig} triggers")
+        json.dumps(attrs)
+        self.root.attrs.update({**attrs, "closed": True})
         zarr.consolidate_metadata(str(self.path))
         self.closed = True
+        if lost:
+            raise SessionWriteError(f"{self.path}: {' and '.join(lost)} could not be stored ({reason}); "
+                                    "the session is closed and marked with what is missing")
+
+    def _write_in_pieces(self, piece: int = TABLE_CHUNK) -> None:
+        """Commit the held events a piece at a time (as many as the disk takes)."""
+        while self._buffered:
+            self._write_events(min(piece, self._buffered))
+
+    def _release_reserve(self) -> None:
+        if self._reserve is not None:
+            with contextlib.suppress(OSError):
+                self._reserve.unlink(missing_ok=True)
 
     def __enter__(self) -> SessionWriter:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _index_arrays(index: zarr.Group) -> zarr.Group:
+    """The ms index group with its array (made if missing)."""
+    if "ms_to_idx" not in index:
+        _, compressors = _codecs("ms_to_idx", "<i8")
+        index.create_array("ms_to_idx", shape=(0,), chunks=(TABLE_CHUNK,), dtype="<i8",
+                           compressors=compressors, fill_value=0)
+    if "n_committed" not in index.attrs:
+        index.attrs["n_committed"] = 0
+    return index
 
 
 def create_session(path, *, width: int, height: int, attrs: Mapping | None = None,
@@ -288,8 +512,9 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
     Parameters
     ----------
     path : str or Path
-        Session directory (must be empty; ``overwrite`` replaces an existing store and keeps the
-        directory's other files, such as the RAW byte stream and the videos).
+        Session directory (must be empty, or left by a creation that was killed before it
+        finished; ``overwrite`` replaces an existing store and keeps the directory's other
+        files, such as the RAW byte stream and the videos).
     width, height : int
         Event sensor geometry in pixels.
     attrs : mapping, optional
@@ -297,11 +522,10 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
     """
     path = Path(path)
     if path.exists() and any(path.iterdir()):
-        if not overwrite:
+        if not overwrite and not unfinished_session(path):
             raise SessionError(f"{path}: already exists and is not empty")
         _remove_store(path)
-    root = zarr.open_group(str(path), mode="a" if overwrite else "w-", zarr_format=3)
-    root.attrs.update({
+    root_attrs = {
         "kind": SESSION_KIND,
         "schema_version": SCHEMA_VERSION,
         "width": int(width),
@@ -310,11 +534,42 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "closed": False,
         **(dict(attrs) if attrs else {}),
-    })
-    return SessionWriter(root, path, flush_interval_s)
+    }
+    json.dumps(root_attrs)
+    path.mkdir(parents=True, exist_ok=True)
+    reserve = path / RESERVE_NAME
+    with reserve.open("wb") as f:
+        f.write(bytes(RESERVE_BYTES))
+        f.flush()
+        os.fsync(f.fileno())
+    # the tables first, the root's metadata (with every attribute) last: until it exists the
+    # directory is an unfinished creation, which create_session reuses
+    _Table(zarr.create_group(str(path / "events"), attributes={"n_committed": 0}, zarr_format=3),
+           _EVENT_COLUMNS, EVENT_CHUNK)
+    _Table(zarr.create_group(str(path / "triggers"), attributes={"n_committed": 0}, zarr_format=3),
+           _TRIGGER_COLUMNS, TABLE_CHUNK)
+    _index_arrays(zarr.create_group(str(path / "index"), attributes={"n_committed": 0}, zarr_format=3))
+    root = zarr.create_group(str(path), attributes=root_attrs, zarr_format=3)
+    return SessionWriter(root, path, flush_interval_s, reserve=reserve)
 
 
-_STORE_ENTRIES = ("zarr.json", "events", "index", "triggers", "frames", "track", "spin")
+_STORE_ENTRIES = ("zarr.json", "events", "index", "triggers", "frames", "track", "spin", RESERVE_NAME)
+
+
+def unfinished_session(path) -> bool:
+    """True when ``path`` holds only the parts of a session whose creation was cut short
+    (killed before its root metadata was written): safe to record into again."""
+    path = Path(path)
+    if not path.is_dir() or (path / "zarr.json").exists():
+        return False
+    names = {p.name for p in path.iterdir()}
+    if not names or not names <= set(_STORE_ENTRIES):
+        return False
+    return not any(p.name == "c" for p in path.rglob("c"))  # no chunk written: nothing recorded
+
+
+def _holds_data(path: Path) -> bool:
+    return (path / "events").is_dir() and any(p.is_dir() for p in (path / "events").glob("*/c"))
 
 
 def _remove_store(path: Path) -> None:
@@ -341,20 +596,105 @@ def update_session(path, flush_interval_s: float = 1.0) -> SessionWriter:
 def _check_root(path: Path) -> zarr.Group:
     if not path.exists():
         raise SessionError(f"{path}: no such session directory")
+    if unfinished_session(path):
+        raise SessionError(f"{path}: an unfinished session (its creation was cut short before any data "
+                           "was recorded); record into it again with --out")
     if not (path / "zarr.json").is_file():
+        if _holds_data(path):
+            raise SessionError(f"{path}: damaged session: its root zarr.json is missing (events/ holds data)")
         raise SessionError(f"{path}: not a session (no Zarr v3 group here)")
     try:
         root = zarr.open_group(str(path), mode="r", use_consolidated=False)
     except Exception as exc:  # zarr raises several types for broken metadata
-        raise SessionError(f"{path}: not a readable Zarr group ({exc})") from exc
+        raise SessionError(f"{path}: not a readable Zarr group ({_reason(exc)})") from exc
     attrs = root.attrs
     if attrs.get("kind") != SESSION_KIND:
         raise SessionError(f"{path}: not a session (Zarr group without kind={SESSION_KIND!r})")
-    version = int(attrs.get("schema_version", -1))
+    version = attrs.get("schema_version")
+    if not _is_count(version):
+        raise SessionError(f"{path}: damaged session: root attribute schema_version = {version!r}")
     if version > SCHEMA_VERSION:
         raise SessionError(f"{path}: session schema version {version} is newer than this software "
                            f"supports ({SCHEMA_VERSION}); upgrade courtside-spin")
+    for key in ("width", "height"):
+        if not _is_count(attrs.get(key)) or attrs[key] == 0 or attrs[key] > 1 << 16:
+            raise SessionError(f"{path}: damaged session: root attribute {key} = {attrs.get(key)!r} "
+                               "(expected the sensor size in pixels)")
     return root
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _reason(exc: BaseException) -> str:
+    """One line for a low-level exception."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+_REQUIRED_TABLES = {"events": _EVENT_COLUMNS, "triggers": _TRIGGER_COLUMNS, "index": {"ms_to_idx": ("<i8", ())}}
+_OPTIONAL_TABLES = {"track": TRACK_COLUMNS, "spin": SPIN_COLUMNS, "frames": {"t_us": ("<i8", ()), "image": None}}
+
+
+def _check_tables(path: Path, root: zarr.Group) -> dict[str, int]:
+    """Committed row counts of the tables, after checking that each is whole: its columns
+    present, ``n_committed`` a row count within every column, every committed chunk on disk.
+
+    A required table (events, triggers, index) must exist; a column of an optional one may be
+    missing (written by an older version: read as NaN or zeros). Raises :class:`SessionError`.
+    """
+    counts = {}
+    for name, columns in {**_REQUIRED_TABLES, **_OPTIONAL_TABLES}.items():
+        required = name in _REQUIRED_TABLES
+        try:
+            group = root[name] if name in root else None
+        except Exception as exc:
+            raise SessionError(f"{path}: damaged session: {name}/ is unreadable ({_reason(exc)})") from exc
+        if group is None or not isinstance(group, zarr.Group):
+            if required:
+                raise SessionError(f"{path}: damaged session: the {name}/ table is missing")
+            counts[name] = 0
+            continue
+        n = group.attrs.get("n_committed")
+        if not _is_count(n):
+            raise SessionError(f"{path}: damaged session: {name}/ n_committed = {n!r} (expected a row count)")
+        for col in columns:
+            if col not in group:
+                if required and n and col in _REQUIRED_TABLES[name]:
+                    raise SessionError(f"{path}: damaged session: column {name}/{col} is missing "
+                                       f"({n} rows committed)")
+                continue
+            try:
+                arr = group[col]
+            except Exception as exc:
+                raise SessionError(f"{path}: damaged session: {name}/{col} is unreadable ({_reason(exc)})") from exc
+            if arr.shape[0] < n:
+                raise SessionError(f"{path}: damaged session: {name}/{col} holds {arr.shape[0]} rows, "
+                                   f"{n} are committed")
+            _check_chunks(path, f"{name}/{col}", arr, n)
+        counts[name] = n
+    return counts
+
+
+def _has_checksums(arr) -> bool:
+    return any(type(c).__name__ == "Crc32cCodec" for c in arr.metadata.codecs)
+
+
+def _check_chunks(path: Path, name: str, arr, n: int) -> None:
+    """Every chunk holding committed rows must be a file. Stores with checksums write every
+    chunk; older ones skip all-zero chunks, so there only time columns are checked."""
+    if n == 0 or not (_has_checksums(arr) or name.endswith(("/t", "/t_us"))):
+        return
+    rows = arr.chunks[0]
+    tails = [range(-(-s // c)) for s, c in zip(arr.shape[1:], arr.chunks[1:])]
+    encode = arr.metadata.chunk_key_encoding.encode_chunk_key
+    for i in range(-(-n // rows)):
+        for tail in itertools.product(*tails):
+            key = encode((i, *tail))
+            if not (path / name / key).is_file():
+                raise SessionError(f"{path}: damaged session: {name} chunk {key} (rows {i * rows}.."
+                                   f"{min((i + 1) * rows, n) - 1}) is missing or not a file")
 
 
 class Session:
@@ -372,13 +712,42 @@ class Session:
         # Never through consolidated metadata: it is stale while a session is being written or
         # updated, and the committed lengths are the truth.
         root = _check_root(self.path)
+        self._counts = _check_tables(self.path, root)
         self.root = root
         self.attrs = dict(root.attrs)
         self.width = int(self.attrs["width"])
         self.height = int(self.attrs["height"])
 
     def _n(self, name: str) -> int:
-        return int(self.root[name].attrs.get("n_committed", 0)) if name in self.root else 0
+        """Committed rows of a table, looked up anew (a live writer may have added some)."""
+        if name not in self.root:
+            return 0
+        group = self.root[name]
+        n = group.attrs.get("n_committed", 0)
+        if _is_count(n) and n <= self._counts.get(name, 0):
+            return n
+        if not _is_count(n) or any(group[c].shape[0] < n for c in group.array_keys()):
+            raise SessionError(f"{self.path}: damaged session: {name}/ n_committed = {n!r} "
+                               "(expected a row count within its columns)")
+        self._counts[name] = n
+        return n
+
+    def read_column(self, name: str, column: str, i0: int, i1: int, step: int | None = None) -> np.ndarray:
+        """Rows ``i0:i1[:step]`` of a column; a damaged chunk (checksum, decompression or file
+        error) raises :class:`SessionError` naming the column and the chunk's rows."""
+        arr = self.root[name][column]
+        try:
+            return arr[i0:i1:step]
+        except Exception as exc:
+            rows = arr.chunks[0]
+            for c in range(i0 // rows, -(-i1 // rows)):  # find the first bad chunk
+                try:
+                    arr[c * rows:min((c + 1) * rows, arr.shape[0])]
+                except Exception as bad:
+                    exc, i0, i1 = bad, c * rows, min((c + 1) * rows, arr.shape[0])
+                    break
+            raise SessionError(f"{self.path}: damaged session: {name}/{column} rows {i0}..{i1 - 1} "
+                               f"cannot be read ({_reason(exc)})") from exc
 
     @property
     def n_events(self) -> int:
@@ -386,19 +755,39 @@ class Session:
         return self._n("events")
 
     @property
+    def damage(self) -> str | None:
+        """One line on what the store lacks (events left out as out of time order, events that
+        could not be written), or None when it holds everything it received."""
+        attrs = self.root["events"].attrs
+        notes = []
+        if attrs.get("n_out_of_order"):
+            runs = attrs.get("out_of_order", [])
+            first = f", first before index {runs[0][0]} (t = {runs[0][1]} µs)" if runs else ""
+            notes.append(f"{attrs['n_out_of_order']} events left out as out of time order (corrupted time "
+                         f"words) in {len(runs)} run(s){first}")
+        for table in ("events", "triggers"):
+            lost = self.root[table].attrs.get("lost")
+            if lost:
+                notes.append(f"{lost[2]} {table} from index {lost[0]} on were not stored ({lost[3]})")
+        raw_error = (self.attrs.get("recording") or {}).get("raw_write_error")
+        if raw_error:
+            notes.append(f"the recording stopped when its RAW file could not be written ({raw_error}); the RAW "
+                         "file may hold events after the store's last one")
+        return "; ".join(notes) or None
+
+    @property
     def duration_s(self) -> float:
         """Time from the first to the last committed event, s (0 without events)."""
         n = self.n_events
         if n == 0:
             return 0.0
-        t = self.root["events"]["t"]
-        return (int(t[n - 1]) - int(t[0])) * 1e-6
+        return (int(self.read_column("events", "t", n - 1, n)[0]) - int(self.read_column("events", "t", 0, 1)[0])) * 1e-6
 
     def _read(self, name: str, columns, i0: int = 0, i1: int | None = None) -> dict[str, np.ndarray]:
         n = self._n(name)
         i1 = n if i1 is None else min(i1, n)
         group = self.root[name] if name in self.root else None
-        return {c: (group[c][i0:i1] if group is not None and c in group else None) for c in columns}
+        return {c: (self.read_column(name, c, i0, i1) if group is not None and c in group else None) for c in columns}
 
     def events_range(self, i0: int, i1: int) -> np.ndarray:
         """Committed events with index ``i0 <= i < i1`` as an EVENT_DTYPE array."""
@@ -415,23 +804,19 @@ class Session:
         if n == 0:
             return 0
         index = self.root["index"]
-        k_max = int(index.attrs.get("n_committed", 0))
+        k_max = self._n("index")
         lo, hi = 0, n
         if k_max and "t0_ms" in index.attrs:
             k = t_us // 1000 - int(index.attrs["t0_ms"])
-            ms_to_idx = index["ms_to_idx"]
             if k < 0:
                 return 0
-            if k < k_max:
-                lo = int(ms_to_idx[k])
-            else:
-                lo = int(ms_to_idx[k_max - 1])
+            lo = int(self.read_column("index", "ms_to_idx", min(k, k_max - 1), min(k, k_max - 1) + 1)[0])
             if k + 1 < k_max:
-                hi = int(ms_to_idx[k + 1])
+                hi = int(self.read_column("index", "ms_to_idx", k + 1, k + 2)[0])
             lo, hi = min(lo, n), min(hi, n)  # the index may be committed past our n
         if hi <= lo:
             return lo
-        t = self.root["events"]["t"][lo:hi]
+        t = self.read_column("events", "t", lo, hi)
         return lo + int(np.searchsorted(t, t_us, side="left"))
 
     def events(self, t_start_us: int | None = None, t_end_us: int | None = None) -> np.ndarray:

@@ -197,8 +197,12 @@ def test_writer_rejects_bad_input(tmp_path):
     with pytest.raises(TypeError, match="EVENT_DTYPE"):
         w.append_events(np.zeros(3, dtype=[("t", "<f8")]))
     w.append_events(make_events([5, 6], [1, 1], [1, 1], [1, 0]))
-    with pytest.raises(ValueError, match="non-decreasing"):
-        w.append_events(make_events([4], [1], [1], [1]))
+    w.append_events(make_events([4, 7], [1, 2], [1, 2], [1, 1]))  # t=4 goes back: left out, recorded
+    w.close()
+    s = S.open_session(tmp_path / "s")
+    assert list(s.events()["t"]) == [5, 6, 7]
+    assert s.root["events"].attrs["out_of_order"] == [[2, 6, 1]]
+    assert "1 events left out as out of time order" in s.damage
     with pytest.raises(S.SessionError, match="already exists"):
         S.create_session(tmp_path / "s", width=10, height=10)
 

@@ -20,7 +20,7 @@ from capture.evk.errors import EvkConnectionError
 from capture.ingest import attach_video
 from capture.pipeline.live import LiveAnalysis
 from capture.review import LiveReview, ReviewError
-from capture.session import create_session, disk_free_bytes
+from capture.session import create_session, disk_free_bytes, unfinished_session
 
 RAW_NAME = "events.raw"
 """The exact byte stream from the sensor, with a RAW header, inside the session directory."""
@@ -66,7 +66,8 @@ class RecordSettings:
     min_free_bytes : int
         Stop recording when the disk has less free space.
     flush_interval_s : float
-        Longest wall time between commits of the session store (what a crash can lose).
+        Longest wall time between commits of the session store, s. What a kill loses is this
+        plus the time to decode and write it (``bench/kill_bench.py`` measures the store's lag).
     quiet : bool
         No status line or progress bars.
     attrs : dict
@@ -88,7 +89,7 @@ class RecordSettings:
     viewer: str = "none"
     max_duration_s: float | None = None
     min_free_bytes: int = 500 * 2**20
-    flush_interval_s: float = 0.5
+    flush_interval_s: float = 0.2
     quiet: bool = False
     attrs: dict = field(default_factory=dict)
 
@@ -108,15 +109,16 @@ class RecordResult:
 
 
 class _Status(threading.Thread):
-    """Every ``period_s``: prints a status line, commits the store if due (``flush``), and stops the
-    recording when the disk is nearly full."""
+    """Every ``tick_s`` commits the store if due (``flush``, also while no data arrives); every
+    ``period_s`` prints a status line and stops the recording when the disk is nearly full."""
 
     def __init__(self, settings: RecordSettings, counters: dict, live, stop: threading.Event,
-                 period_s: float = 0.5, flush=None):
+                 period_s: float = 0.5, flush=None, tick_s: float = 0.05):
         super().__init__(name="status", daemon=True)
         self.settings, self.counters, self.live, self.stop_event = settings, counters, live, stop
         self.flush = flush
         self.period_s = period_s
+        self.tick_s = tick_s
         self.done = threading.Event()
         self.tty = sys.stderr.isatty()
         self.reason: str | None = None
@@ -124,13 +126,15 @@ class _Status(threading.Thread):
     def run(self) -> None:
         t_start = time.monotonic()
         last_n, last_t = 0, t_start
-        while not self.done.wait(self.period_s):
+        while not self.done.wait(self.tick_s):
+            if self.flush is not None:
+                self.flush()
             now = time.monotonic()
+            if now - last_t < self.period_s:
+                continue
             n = self.counters["events"]
             rate = (n - last_n) / max(now - last_t, 1e-9)
             last_n, last_t = n, now
-            if self.flush is not None:
-                self.flush()
             try:
                 free = disk_free_bytes(self.settings.out)
             except OSError as exc:  # the disk went away: stop rather than write into nothing
@@ -168,12 +172,15 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     nearly full, or a fake device's file ends. Whatever happens after the session
     is created (a device unplugged mid-stream, a write error, a second Ctrl-C),
     everything received is kept: the store is flushed and closed, the GoPro is
-    stopped and its video downloaded. A device failure is reported in
-    ``RecordResult.error``.
+    stopped and its video downloaded. A device failure or a write error (disk full:
+    the recording stops, what could not be stored is marked in the store) is reported
+    in ``RecordResult.error``. Events whose times go back (corrupted words on the link)
+    do not stop the recording: they are left out of the store, counted and placed there,
+    and the RAW file keeps their bytes.
     """
     stop = stop or threading.Event()
     out = Path(settings.out)
-    if out.exists() and any(out.iterdir()):
+    if out.exists() and any(out.iterdir()) and not unfinished_session(out):
         raise RecorderError(f"{out}: already exists and is not empty; choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     if disk_free_bytes(out) < settings.min_free_bytes:
@@ -184,6 +191,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     writer = live = review = gopro_media = stats = None
     counters = {"events": 0, "triggers": 0, "drops": 0}
     write_error: list[BaseException] = []
+    raw_error = False
     reason = "error"
     device_error: str | None = None
     lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
@@ -212,26 +220,27 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
         live = LiveAnalysis(info.width, info.height, review=review)
 
         def on_batch(events, triggers):
-            if write_error:
-                return
-            try:
-                with lock:
-                    writer.append_events(events)
-                    if len(triggers):
-                        writer.append_triggers(triggers)
-            except OSError as exc:  # disk full or gone: stop, keep what is committed
-                write_error.append(exc)
-                stop.set()
-                return
+            with lock:  # after a write error the writer holds what it is given for its close
+                for append, rows in ((writer.append_events, events), (writer.append_triggers, triggers)):
+                    try:
+                        append(rows)
+                    except OSError as exc:  # disk full or gone: stop; what cannot be stored gets marked
+                        _write_failed(exc)
             counters["events"] += len(events)
             counters["triggers"] += len(triggers)
             live.offer(events)
             if review is not None:
                 review.log_events(events)
 
+        def _write_failed(exc: OSError) -> None:
+            if not write_error:
+                write_error.append(exc)
+            stop.set()
+
         if settings.gopro is not None:
             gopro_media = _gopro_start(settings, messages)
-        status = _Status(settings, counters, live, stop, flush=lambda: _flush_if_due(writer, lock))
+        status = _Status(settings, counters, live, stop,
+                         flush=lambda: _flush_if_due(writer, lock, _write_failed))
         status.start()
         _log(settings, f"Recording {info.board} {info.sensor} {info.width}x{info.height} "
                        f"(serial {info.serial}) into {out}; Ctrl-C stops")
@@ -243,12 +252,15 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             stats = getattr(exc, "stats", None)
             device_error = f"{type(exc).__name__}: {exc}"
             reason = "device error"
+        except OSError as exc:  # the RAW file could not be written (disk full): finalise the store
+            _write_failed(exc)
+            raw_error = True
         finally:
             status.done.set()
             status.join()
         reason = (status.reason or (f"write error: {write_error[0]}" if write_error else None) or reason)
         if write_error:
-            messages.append(f"stopped on a write error ({write_error[0]}); everything before it is kept")
+            messages.append(f"stopped on a write error ({' '.join(str(write_error[0]).split())})")
         if device_error:
             messages.append(f"the camera failed mid-recording ({device_error}); everything received "
                             "before it is kept")
@@ -261,23 +273,38 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                 messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
                                 "(lost data on the link, or idle periods)")
     finally:
-        _finalise(writer, live, review, stats, reason, lock, messages)
+        store_error = _finalise(writer, live, review, stats, reason, lock, messages,
+                                raw_write_error=str(write_error[0]) if raw_error else None)
         camera.close()
         if gopro_media is not None:
             _gopro_finish(settings, gopro_media, out, messages)
 
+    if write_error and not store_error:
+        what = " ".join(str(write_error[0]).split())
+        store_error = (f"{RAW_NAME} could not be written ({what}); the store holds the {counters['events']} events "
+                       "decoded before it" if raw_error else
+                       f"write error: {what}; every event received is in the store")
     return RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
-                        live.state.skipped_events, reason, messages=messages, error=device_error)
+                        live.state.skipped_events, reason, messages=messages,
+                        error=device_error or store_error)
 
 
-def _flush_if_due(writer, lock: threading.Lock) -> None:
-    """Commit buffered events when the flush interval has passed (also while no data arrives)."""
-    with lock:
-        writer.flush_if_due()
+def _flush_if_due(writer, lock: threading.Lock, on_error) -> None:
+    """Commit buffered events when the flush interval has passed (also while no data arrives);
+    a write error goes to ``on_error`` (the status thread goes on)."""
+    try:
+        with lock:
+            writer.flush_if_due()
+    except OSError as exc:
+        on_error(exc)
 
 
-def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str]) -> None:
-    """Stop live analysis and viewer, then flush, describe and close the session store."""
+def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str],
+              raw_write_error: str | None = None) -> str | None:
+    """Stop live analysis and viewer, then flush, describe and close the session store; the
+    one-line error when the store could not hold everything (or could not be closed).
+    ``raw_write_error``: the RAW file could not be written; the store is marked as possibly
+    behind it (``recording.raw_write_error``)."""
     if live is not None:
         live.close()
         if live.error is not None:
@@ -288,16 +315,25 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
     if review is not None:
         review.close()
     if writer is None:
-        return
+        return None
     recording = {"stop_reason": reason,
                  "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     if stats is not None:
         recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
                          gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
                          payload_bytes=int(stats.payload_bytes))
+    if raw_write_error:
+        recording["raw_write_error"] = " ".join(raw_write_error.split())
+    if writer.n_out_of_order:
+        recording["out_of_order_events"] = int(writer.n_out_of_order)
+        messages.append(f"{writer.n_out_of_order} events with times out of order (corrupted words) left out "
+                        f"of the store (placed in its events attrs 'out_of_order'; {RAW_NAME} keeps their bytes)")
     with lock:
-        writer.set_attrs(recording=recording)
-        writer.close()
+        try:
+            writer.close(recording=recording)
+        except OSError as exc:  # SessionWriteError: closed and marked; other: could not close at all
+            return " ".join(str(exc).split())
+    return None
 
 
 def _gopro_start(settings: RecordSettings, messages: list[str]):
