@@ -6,6 +6,6 @@ which :func:`spin_windows` cuts into the spin estimator's windows.
 """
 
 from detect.track import SpinWindow, spin_windows
-from detect.tracker import BallTracker, track_ball
+from detect.tracker import BallTracker, DetectInputError, track_ball
 
-__all__ = ["BallTracker", "SpinWindow", "spin_windows", "track_ball"]
+__all__ = ["BallTracker", "DetectInputError", "SpinWindow", "spin_windows", "track_ball"]

@@ -49,6 +49,10 @@ _REJECT_SKIP = 3
 """Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
 
 
+class DetectInputError(ValueError):
+    """Events the tracker cannot take (out of time order, outside the sensor size given)."""
+
+
 def _iou(a, b) -> float:
     """Intersection over union of two boxes ``(x0, y0, x1, y1)``."""
     w = min(a[2], b[2]) - max(a[0], b[0])
@@ -129,6 +133,7 @@ class BallTracker:
         self._frame_seq = itertools.count()
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (events, their times contiguous)
         self._block0: int | None = None
+        self._last_t: int | None = None
         self._kf: CircleKalman | None = None
         self._scores: list[float] = []
         self._flight = -1
@@ -146,16 +151,48 @@ class BallTracker:
 
     # ------------------------------------------------------------------ public API
     def update(self, events: np.ndarray) -> Track:
-        """Feed a time-sorted batch of events; returns the track rows completed by it (filtered)."""
+        """Feed a time-sorted batch of events; returns the track rows completed by it (filtered).
+
+        Raises
+        ------
+        DetectInputError
+            Events out of time order, or outside the sensor size given.
+        """
         events = np.asarray(events)
         if events.dtype != EVENT_DTYPE:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
+        self._check(events)
         if len(events):
             if self._block0 is None:
                 self._block0 = int(events["t"][0]) // self.block_us * self.block_us
             self._pending.append((events, np.ascontiguousarray(events["t"])))
             self._run(final=False)
         return self._take_rows()
+
+    def _check(self, events: np.ndarray) -> None:
+        """Refuse, with one line naming the first offence, events out of time order (within the
+        batch or behind the previous one) and coordinates outside the sensor size."""
+        if not len(events):
+            return
+        t = events["t"]
+        back = np.flatnonzero(t[1:] < t[:-1])
+        if self._last_t is not None and t[0] < self._last_t:
+            raise DetectInputError(f"events out of time order: this batch starts at t={int(t[0])} µs, before the "
+                                   f"previous batch's last event at {self._last_t} µs")
+        if len(back):
+            i = int(back[0]) + 1
+            raise DetectInputError(f"events out of time order: t goes back from {int(t[i - 1])} to {int(t[i])} µs "
+                                   f"at index {i}; sort them by 't' first")
+        x_max, y_max = int(events["x"].max()), int(events["y"].max())
+        if x_max >= self.width or y_max >= self.height:
+            raise DetectInputError(f"events reach x={x_max}, y={y_max}, outside the {self.width}x{self.height} "
+                                   "sensor size given")
+        self._last_t = int(t[-1])
+
+    @property
+    def last_t_us(self) -> int | None:
+        """Time of the last event taken, µs (None before the first)."""
+        return self._last_t
 
     def update_frame(self, image: np.ndarray, t_us: int) -> None:
         """Queue a frame whose (mid-exposure) time on the event clock is ``t_us``."""

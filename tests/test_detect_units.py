@@ -282,3 +282,21 @@ def test_frames_are_fused_into_the_track():
     assert np.isin(t_frames[4:], tr.t_us).sum() >= 2  # frame updates became rows
     ex, ey = _truth(tr.t_us, c0, v, t0=500)
     assert np.median(np.hypot(tr.cx - ex, tr.cy - ey)) < 0.5
+
+
+def test_tracker_refuses_bad_input_on_one_line():
+    import sim
+    from detect import BallTracker, DetectInputError, track_ball
+
+    ev = sim.flight(width=160, height=120, radius_px=10, duration_s=0.05, seed=3).events
+    assert len(track_ball(ev[:0], width=160, height=120).t_us) == 0  # empty input: empty track
+    shuffled = ev[np.random.default_rng(0).permutation(len(ev))]
+    with pytest.raises(DetectInputError, match=r"out of time order: t goes back from \d+ to \d+ µs at index \d+"):
+        track_ball(shuffled, width=160, height=120)
+    with pytest.raises(DetectInputError, match=r"events reach x=\d+, y=\d+, outside the 80x60 sensor size given"):
+        track_ball(ev, width=80, height=60)
+    tracker = BallTracker(160, 120)
+    tracker.update(ev[len(ev) // 2:])
+    with pytest.raises(DetectInputError, match="before the previous batch's last event"):
+        tracker.update(ev[: len(ev) // 2])
+    assert tracker.last_t_us == int(ev["t"][-1])

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import spin
-from capture.events import Track, concatenate, time_slice
+from capture.events import Track, concatenate, in_order_mask, time_slice
 from detect import BallTracker, spin_windows
 
 
@@ -107,6 +107,13 @@ class LiveAnalysis:
             self.error = exc
 
     def _analyse(self, batch: np.ndarray) -> None:
+        # Corrupted words on the link give events out of order or off the sensor: the store
+        # counts them; the live analysis leaves them out.
+        keep = in_order_mask(batch["t"], self.tracker.last_t_us)
+        keep &= (batch["x"] < self.tracker.width) & (batch["y"] < self.tracker.height)
+        batch = batch[keep]
+        if not len(batch):
+            return
         rows = self.tracker.update(batch)
         self.state.analysed_events += len(batch)
         t_now = int(batch["t"][-1])
