@@ -4,6 +4,7 @@ import io
 import warnings
 from functools import lru_cache
 
+import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -62,14 +63,18 @@ def test_stream_decoders_survive_mutated_real_data(file_index, ops, decoder, chu
     fmt, order = decoder
     w, h = (640, 480) if geometry else (None, None)
     dec = raw.StreamDecoder(fmt, endianness=order, width=w, height=h, time_shift=shift)
-    n = 0
+    n, times = 0, []
     for i in range(0, len(data), chunk):
         ev, tr = dec.decode(data[i:i + chunk])
         _check(ev, tr, w, h)
         n += len(ev)
+        times.append(ev["t"])
     dec.finish()
     stats = dec.stats
     assert stats["events"] == n
+    t = np.concatenate(times)
+    if np.any(t[1:] < t[:-1]):  # time going back is never silent
+        assert stats["events_time_backward"] > 0 and dec.damaged
     assert stats["words"] == len(data) // dec.word_bytes
 
 

@@ -18,6 +18,7 @@ STAT_KEYS = (
     "events_other_system",       # EVT3 ADDR_Y system-type bit set: another camera's events, dropped
     "events_out_of_bounds",      # x >= width or y >= height: dropped (damage)
     "time_backward",             # TIME_HIGH steps backwards that are not a wrap (jitter/damage)
+    "events_time_backward",      # CD events earlier than an event before them (e.g. a damaged TIME_LOW word)
     "time_jumps",                # TIME_HIGH forward steps larger than one unit (gap or loss)
     "time_loops",                # TIME_HIGH wrap-arounds counted into the 64-bit time
     "others",                    # OTHERS / CONTINUED / IMU words (no CD events)
@@ -26,7 +27,7 @@ STAT_KEYS = (
     "incomplete_group_words",    # EVT3: words of a vector triplet cut off by the end of the stream
 )
 DAMAGE_KEYS = ("events_without_y", "vectors_without_base", "events_out_of_bounds",
-               "time_backward", "unknown_words", "trailing_bytes", "incomplete_group_words")
+               "time_backward", "events_time_backward", "unknown_words", "trailing_bytes", "incomplete_group_words")
 """Counters that indicate damaged or foreign input."""
 
 
@@ -43,6 +44,7 @@ class DecoderState:
     th_raw: int = 0                # last TIME_HIGH payload as sent (wrapping)
     loops: int = 0                 # wrap-arounds so far
     t_us: int = 0                  # current time (64-bit, not shifted)
+    t_max: int = -(1 << 62)        # latest CD event time emitted so far (µs, not shifted)
     tl: int = 0                    # EVT3: last TIME_LOW payload
     y: int = 0xFFFF                # EVT3: last ADDR_Y payload incl. system bit (0xFFFF: none yet)
     base_x: int = -1               # EVT3: next vector base x (-1: no VECT_BASE_X yet)
@@ -59,6 +61,25 @@ class DecoderState:
             self.stats[key] += int(count)
             if self.first_damage_word is None or word_index < self.first_damage_word:
                 self.first_damage_word = int(word_index)
+
+
+def check_time_order(t: np.ndarray, st: DecoderState, word_index: int) -> None:
+    """Count CD events earlier than an event before them (a damaged time word), as damage.
+
+    ``t`` is a batch's contiguous int64 event times (µs) in stream order; ``st.t_max`` carries
+    the latest time across batches. The common in-order case costs one comparison pass.
+    """
+    if not len(t):
+        return
+    if t[0] < st.t_max or not np.greater_equal(t[1:], t[:-1]).all():
+        peak = np.maximum.accumulate(t)
+        prior = np.empty_like(peak)
+        prior[0] = st.t_max
+        np.maximum(peak[:-1], st.t_max, out=prior[1:])
+        st.damage("events_time_backward", np.count_nonzero(t < prior), word_index)
+        st.t_max = max(st.t_max, int(peak[-1]))
+    else:
+        st.t_max = int(t[-1])
 
 
 def xy_view(events: np.ndarray) -> np.ndarray:

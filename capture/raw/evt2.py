@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, in_bounds,
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, check_time_order, in_bounds,
                                   first_of_type, make_events, merge_order, select, time_high_words,
                                   triggers_from, xy_view)
 
@@ -105,6 +105,7 @@ def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tupl
     scratch = np.right_shift(hc, 22)           # one reused temporary keeps the working set small
     scratch &= 0x3F
     t |= scratch
+    check_time_order(t, st, w0)
 
     def word_of(j):                            # stream word index of CD word j
         return w0 + (j if noncd is None else int(np.flatnonzero(cd)[j]))

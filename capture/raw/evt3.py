@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, first_of_type,
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, check_time_order,
+                                  first_of_type,
                                   in_bounds, make_events, merge_order, time_high_words, triggers_from, xy_view)
 
 TIME_HIGH_WRAP = 1 << 12
@@ -271,6 +272,7 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         keep = bounds if keep is None else keep & bounds
     if keep is not None:
         t, x, y, p = (a.compress(keep) for a in (t, x, y, p))
+    check_time_order(t, st, w0)
     ev = make_events(len(t))
     ev["t"] = t
     xy = y.astype(np.uint32)

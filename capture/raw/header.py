@@ -161,6 +161,9 @@ def parse_header(data: bytes, *, source: str = "<bytes>") -> tuple[dict, int]:
         geometry = _geometry_from_fields(fields, options)
     except ValueError as exc:
         raise RawFormatError(f"{source}: bad geometry in header ({exc})") from None
+    if geometry and not all(0 < v <= MAX_SIZE_PX for v in geometry):
+        raise RawFormatError(f"{source}: bad geometry {geometry[0]}x{geometry[1]} in header "
+                             f"(event formats address 1..{MAX_SIZE_PX} pixels)")
     endianness = options.get("endianness", fields.get("endianness", "little")).lower()
     if endianness not in ("little", "legacy"):
         raise RawFormatError(f"{source}: unsupported endianness {endianness!r} (little or legacy)")
@@ -173,6 +176,10 @@ def parse_header(data: bytes, *, source: str = "<bytes>") -> tuple[dict, int]:
         "fields": fields,
     }
     return header, pos
+
+
+MAX_SIZE_PX = 2048
+"""Largest sensor width or height the EVT formats can address (11-bit coordinates)."""
 
 
 def header_bytes(format: str = "EVT3", *, width: int, height: int, endianness: str = "little",
@@ -198,8 +205,8 @@ def header_bytes(format: str = "EVT3", *, width: int, height: int, endianness: s
     """
     fmt = normalize_format(format)
     width, height = int(width), int(height)
-    if not (0 < width <= 2048 and 0 < height <= 2048):
-        raise ValueError(f"geometry {width}x{height} is outside 1..2048 pixels")
+    if not (0 < width <= MAX_SIZE_PX and 0 < height <= MAX_SIZE_PX):
+        raise ValueError(f"geometry {width}x{height} is outside 1..{MAX_SIZE_PX} pixels")
     options = f";endianness={endianness}" if fmt == "EVT21" else ""
     fields = {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S"),
               "evt": _EVT_VERSION[fmt],

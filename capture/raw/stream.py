@@ -32,6 +32,10 @@ DEFAULT_CHUNK_BYTES = 1 << 20
 """Bytes read per batch when streaming a file (1 MiB: temporaries stay small and reusable)."""
 
 
+MAX_TIME_BASE_US = 1 << 62
+"""Largest time base a header may give (µs; event times must stay within int64)."""
+
+
 class StreamDecoder:
     """Stateful decoder for a RAW byte stream (no header) of one format.
 
@@ -70,7 +74,9 @@ class StreamDecoder:
         self.time_shift = bool(time_shift)
         self.word_bytes = WORD_BYTES[self.format]
         wrap_us = WRAP_US[self.format]
-        if time_base_us < 0 or time_base_us % wrap_us:
+        if not 0 <= time_base_us < MAX_TIME_BASE_US:
+            raise RawFormatError(f"time_base_us={time_base_us} is outside 0..2^62 us")
+        if time_base_us % wrap_us:
             raise RawFormatError(f"time_base_us={time_base_us} is not a multiple of the {self.format} "
                                  f"wrap period {wrap_us} us")
         self._state = DecoderState(width=width, height=height, loops=time_base_us // wrap_us)
@@ -230,6 +236,8 @@ class RawReader:
             time_base_us = int(self.header["fields"].get("time_base_us", 0))
         except ValueError:
             raise RawFormatError(f"{self.name}: header field time_base_us is not an integer") from None
+        if not 0 <= time_base_us < MAX_TIME_BASE_US:
+            raise RawFormatError(f"{self.name}: header field time_base_us={time_base_us} is outside 0..2^62 us")
         self.decoder = StreamDecoder(fmt, endianness=self.header["endianness"], time_shift=time_shift,
                                      width=self.width, height=self.height, time_base_us=time_base_us)
 
