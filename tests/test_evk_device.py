@@ -323,3 +323,21 @@ def test_recorder_sets_anti_flicker_and_stores_it(shared_raw_dir, tmp_path):
     assert fake.registers[0xC000] == 0b001 and fake.registers[0xC008] & 0xFFFF == (9090 >> 7) | (11111 >> 7) << 8
     sensor = open_session(tmp_path / "s").attrs["sensor"]
     assert sensor["anti_flicker_hz"] == [90, 110] and sensor["erc_ev_s"] == 20e6
+
+
+@pytest.mark.parametrize("content, match", [
+    (b"", "is empty"),
+    (b"% format EVT3;height=720;width=1280\n% end\n", "holds no event data"),
+    (b"\x89PNG\r\n\x1a\n" + bytes(64), "is not a Prophesee RAW recording"),
+    (b"% evt 2.0\n% end\n" + bytes(64), "is an EVT2 recording; the emulated EVK streams EVT3"),
+])
+def test_fake_refuses_files_it_cannot_present(tmp_path, capsys, content, match):
+    from capture.evk.cli import main
+
+    src = tmp_path / "in.raw"
+    src.write_bytes(content)
+    with pytest.raises(ValueError, match=match):
+        FakeEVK(src)
+    assert main(["record", str(tmp_path / "out.raw"), "--fake", str(src)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0] and not (tmp_path / "out.raw").exists()

@@ -120,10 +120,11 @@ def _usb_error(code: int, err: int, text: str) -> usb.core.USBError:
     return usb.core.USBError(text, code, err)
 
 
-def _split_raw(data: bytes) -> tuple[bytes, str]:
-    """(payload, format) of a RAW file's bytes: skip the ``%`` header lines."""
+def _split_raw(data: bytes) -> tuple[bytes, str | None]:
+    """(payload, format) of a RAW file's bytes: skip the ``%`` header lines (format None when
+    the header names none)."""
     pos = 0
-    fmt = "EVT3"
+    fmt = None
     while pos < len(data) and data[pos:pos + 1] == b"%":
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end + 1
@@ -132,6 +133,8 @@ def _split_raw(data: bytes) -> tuple[bytes, str]:
             fmt = "EVT2"
         elif "evt 2.1" in line or "format evt21" in line:
             fmt = "EVT21"
+        elif "evt 3.0" in line or "format evt3" in line:
+            fmt = "EVT3"
         pos = end
         if line.strip() == "% end":
             break
@@ -289,7 +292,16 @@ class FakeEVK(usb.backend.IBackend):
         self._claimed = False
 
         if raw_path is not None:
-            payload, self.format = _split_raw(Path(raw_path).read_bytes())
+            data = Path(raw_path).read_bytes()
+            if not data:
+                raise ValueError(f"FakeEVK: {raw_path} is empty")
+            payload, self.format = _split_raw(data)
+            if self.format != "EVT3":  # every emulated sensor streams EVT3, as the EVK's defaults
+                raise ValueError(f"FakeEVK: {raw_path} is " + (f"an {self.format} recording" if self.format else
+                                 "not a Prophesee RAW recording (no header naming its format)")
+                                 + "; the emulated EVK streams EVT3 (read other files with capture.ingest raw)")
+            if not payload:
+                raise ValueError(f"FakeEVK: {raw_path} holds no event data")
         else:
             payload, self.format = b"", "EVT3"
         self.payload = payload
