@@ -27,6 +27,7 @@ import threading
 from pathlib import Path
 
 from capture.cliargs import box, flicker_band, name_int, run_command
+from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
 from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
 
@@ -48,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--speed", choices=["recorded", "max"], default="recorded",
                     help="--fake/--demo pace: as recorded, or as fast as possible")
     ap.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    ap.add_argument("--bias-file", metavar="FILE.bias",
+                    help="Metavision bias file (VALUE %% NAME lines); --bias values override it")
     ap.add_argument("--bias", type=name_int, action="append", default=[], metavar="NAME=VALUE",
                     help="sensor bias (IMX636: offset from the factory value); repeat for several")
     ap.add_argument("--roi", type=box, metavar="X,Y,WIDTH,HEIGHT", help="region of interest in pixels")
@@ -125,7 +128,7 @@ def _devices(args, out: Path):
         with demo_devices(out, viewer=args.viewer, speed=args.speed, quiet=args.quiet) as (settings, truth):
             yield settings, truth
         return
-    settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=dict(args.bias),
+    settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=biases_of(args.bias_file, args.bias),
                               roi=args.roi, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet)
     if args.fake:

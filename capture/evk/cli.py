@@ -1,8 +1,9 @@
 """Command line: list EVKs, or record one to a RAW file.
 
     python -m capture.evk list
+    python -m capture.evk biases [--serial a1b2c3d4] [--save current.bias]
     python -m capture.evk record out.raw [--duration 10] [--serial a1b2c3d4] [--erc 20e6]
-        [--bias bias_fo=10 --bias bias_refr=-5] [--trigger] [--roi X,Y,WIDTH,HEIGHT]
+        [--bias-file tuned.bias] [--bias bias_fo=10 --bias bias_refr=-5] [--trigger] [--roi X,Y,WIDTH,HEIGHT]
         [--fake some.raw [--speed max]]   # no hardware: stream a RAW file through the fake
 """
 
@@ -15,6 +16,7 @@ import threading
 from capture import cliargs
 
 from . import list_devices, open, record
+from .bias_file import biases_of, write_bias_file
 from .fake import FakeEVK
 
 PROG = "python -m capture.evk"
@@ -24,11 +26,17 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=PROG, description="Prophesee EVK3/EVK4 over USB")
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="list connected EVKs")
+    b = sub.add_parser("biases", help="print the sensor's biases (IMX636: offsets from the factory trim)")
+    b.add_argument("--serial", help="camera serial (default: the first EVK found)")
+    b.add_argument("--save", metavar="FILE.bias", help="also write them as a Metavision bias file")
+    b.add_argument("--fake", metavar="FILE", help="ask the emulated EVK instead of hardware")
     rec = sub.add_parser("record", help="record to a RAW file (Ctrl-C stops)")
     rec.add_argument("out", help="output RAW file")
     rec.add_argument("--serial", help="camera serial (see 'list'; default: the first EVK found)")
     rec.add_argument("--duration", type=float, metavar="S", help="seconds (default: until Ctrl-C)")
     rec.add_argument("--erc", type=float, metavar="EV_S", help="cap the sensor's event rate, events per second")
+    rec.add_argument("--bias-file", metavar="FILE.bias",
+                     help="Metavision bias file (VALUE %% NAME lines); --bias values override it")
     rec.add_argument("--bias", type=cliargs.name_int, action="append", default=[], metavar="NAME=VALUE",
                      help="sensor bias, repeatable (IMX636: offset from the factory trim)")
     rec.add_argument("--anti-flicker", type=cliargs.flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
@@ -45,7 +53,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    return cliargs.run_command(PROG, lambda: _list() if args.cmd == "list" else _record(args))
+    commands = {"list": _list, "record": lambda: _record(args), "biases": lambda: _biases(args)}
+    return cliargs.run_command(PROG, commands[args.cmd])
+
+
+def _biases(args) -> None:
+    backend = FakeEVK(args.fake) if args.fake else None
+    with open(args.serial, backend=backend) as cam:
+        biases = cam.get_biases()
+    for name, value in sorted(biases.items()):
+        print(f"{name} {value}")
+    if args.save:
+        print(f"saved to {write_bias_file(args.save, biases)}")
 
 
 def _list() -> None:
@@ -62,7 +81,7 @@ def _record(args) -> None:
     backend = FakeEVK(args.fake, pace=args.speed) if args.fake else None
     with open(args.serial, backend=backend) as cam:
         print(cam)
-        cam.configure(biases=dict(args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
+        cam.configure(biases=biases_of(args.bias_file, args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
                       anti_flicker_hz=args.anti_flicker)
         stop = threading.Event()
         previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.set())
