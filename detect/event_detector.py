@@ -101,7 +101,8 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     center0 : (float, float)
         Starting centre, px (e.g. the events' centroid or the track prediction).
     n_sectors : int
-        Angular sectors for the boundary search.
+        Most angular sectors for the boundary search (fewer, down to 12, when there are fewer than
+        ``1.5 min_sector_events`` events per sector).
     k_outer : int
         In each sector the ``k_outer``-th outermost event is the boundary point
         (robust to ``k_outer - 1`` stray events); it is moved outwards by
@@ -126,6 +127,8 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     n = len(x)
     if n < 3 * min_sector_events:
         return None
+    # fewer sectors for few events (a sparse window), so that each still holds min_sector_events
+    n_sectors = int(np.clip(n // (1.5 * min_sector_events), 12, n_sectors))
     if n > max_events:
         step = n / max_events
         sub = (np.arange(max_events) * step).astype(np.int64)
@@ -179,10 +182,54 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     d2 = (x - cx) ** 2 + (y - cy) ** 2
     inside = np.count_nonzero(d2 <= (r + 1.5) ** 2) / len(d2)
     coverage = n_in / n_sectors
-    sigma_rim = max(1.0, 0.04 * r)
+    sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
     sigma_px = float(np.sqrt(2.0 / n_in) * max(rms, 0.3))
     return CircleFit(cx, cy, r, float(score), sigma_px, n)
+
+
+def hough_circles(x: np.ndarray, y: np.ndarray, *, r_range: tuple[float, float], max_circles: int = 3,
+                  blur_px: float = 2.0, vote: float = 0.5) -> list[tuple[float, float, float]]:
+    """Round blobs in the image of a cluster's events (OpenCV ``HOUGH_GRADIENT_ALT``).
+
+    Used where a cluster holds the ball and something touching it (an arm, a racket, a
+    second ball): the rim fit of the whole cluster fails, but the ball's disk (a textured
+    ball) or ring (a plain one) is still a circle in the event-count image.
+
+    Parameters
+    ----------
+    x, y : ndarray of float, shape (N,)
+        Event positions (px), motion-compensated.
+    r_range : (float, float)
+        Radius range, px.
+    blur_px : float
+        Gaussian blur of the count image (sigma, px).
+    vote : float
+        Least circle "perfectness" (``param2`` of ``HOUGH_GRADIENT_ALT``, 0..1).
+
+    Returns
+    -------
+    list of (cx, cy, r)
+        In px, best first.
+    """
+    if len(x) < 20:
+        return []
+    xi, yi = np.rint(x).astype(np.int64), np.rint(y).astype(np.int64)
+    pad = int(np.ceil(3 * blur_px)) + 2
+    x0, y0 = int(xi.min()) - pad, int(yi.min()) - pad
+    w, h = int(xi.max()) - x0 + pad + 1, int(yi.max()) - y0 + pad + 1
+    img = np.bincount((yi - y0) * w + (xi - x0), minlength=w * h).astype(np.float32).reshape(h, w)
+    img = cv2.GaussianBlur(img, (0, 0), blur_px)
+    peak = float(img.max())
+    if peak <= 0:
+        return []
+    u8 = np.clip(img * (255.0 / peak), 0, 255).astype(np.uint8)
+    found = cv2.HoughCircles(u8, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=max(2.0, r_range[0]), param1=60,
+                             param2=vote, minRadius=max(1, int(np.floor(r_range[0]))),
+                             maxRadius=int(np.ceil(r_range[1])))
+    if found is None:
+        return []
+    return [(float(cx) + x0, float(cy) + y0, float(r)) for cx, cy, r in found.reshape(-1, 3)[:max_circles]]
 
 
 def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, cell_px: int = 4,

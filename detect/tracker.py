@@ -2,7 +2,11 @@
 
 Events are processed in time blocks (``block_us``, for the hot-pixel map) cut
 into slices (``slice_us``, 1-2 ms) on a fixed time grid, so the result does not
-depend on how the stream is batched. In each slice:
+depend on how the stream is batched. Where events are few (a small sensor, a dim
+scene, a plain ball that fires only at its rim), slices are joined into a longer
+window until it holds enough of them: ``search_events`` over the sensor while
+searching, ``track_events`` around the prediction while tracking, at most
+``max_window_us``; the thresholds thus follow the event rate. In each window:
 
 * while no flight is active, the density map of the slice gives candidate
   clusters; each is motion-compensated with its own centroid velocity and
@@ -34,7 +38,8 @@ import itertools
 import numpy as np
 
 from capture.events import EVENT_DTYPE, Track, concatenate
-from detect.event_detector import CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle
+from detect.event_detector import (CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle,
+                                   hough_circles)
 from detect.frame_detector import FrameDetector
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
@@ -45,8 +50,35 @@ _MAX_FIT_EVENTS = 4000
 _HOT_EVERY = 4
 """The hot-pixel map is refreshed from one block in this many (hot pixels persist)."""
 
+TRACK_SCORE_FACTOR = 1.0
+"""While tracking, a fit inside the gate needs only this fraction of ``min_score`` (a plain ball lit
+from one side, or seen along its motion, shows only part of its rim)."""
+
 _REJECT_SKIP = 3
 """Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
+
+
+SPLIT_MAX_SURROUNDED = 0.5
+"""A ball told apart from what touches it has events around it on at most this share of its sides."""
+
+SPLIT_MIN_SPEED_R_S = 25.0
+"""A flight found only by telling a ball apart from what touches it must move at least this many
+radii per second (about 2.5 m/s for any ball): a round thing at rest against a body (a head on a
+player, a ball held in a hand) is no flight."""
+
+
+def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 12) -> float:
+    """Share of the directions around circle ``fit`` in which the ring just outside it
+    (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the disk."""
+    dx, dy = x - fit.cx, y - fit.cy
+    d = np.hypot(dx, dy)
+    r = fit.r
+    dens_in = np.count_nonzero(d < r) / (np.pi * r * r)
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    ring = (d > r0) & (d < r1)
+    sector = ((np.arctan2(dy[ring], dx[ring]) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+    dens_ring = np.bincount(sector, minlength=n_sectors) / (np.pi * (r1 * r1 - r0 * r0) / n_sectors)
+    return float(np.mean(dens_ring >= 0.3 * dens_in))
 
 
 class DetectInputError(ValueError):
@@ -100,17 +132,25 @@ class BallTracker:
     smooth_lag_us : int
         Later updates, in µs, that smooth a row before it is final (at 100 ms the rows
         equal those of smoothing the whole flight to within 1e-4 px on simulated flights).
+    search_events, track_events : int
+        Least events of a search window (whole sensor, hot pixels removed) and of a tracking
+        window (around the prediction); slices are joined until a window holds them.
+    max_window_us : int
+        Longest window, µs (a multiple of ``slice_us``).
     """
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
-                 r_range=(5.0, 100.0), min_score: float = 0.3, confirm_slices: int = 3, max_misses: int = 3,
+                 r_range=(5.0, 160.0), min_score: float = 0.3, confirm_slices: int = 3, max_misses: int = 3,
                  model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 3.0e4, gate_chi2: float = 25.0,
                  cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True,
-                 smooth_lag_us: int = 100_000):
+                 smooth_lag_us: int = 100_000, search_events: int = 600, track_events: int = 200,
+                 max_window_us: int = 40_000):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
         if slice_us <= 0 or block_us % slice_us:
             raise ValueError(f"block_us ({block_us}) must be a positive multiple of slice_us ({slice_us})")
+        if max_window_us < slice_us or max_window_us % slice_us:
+            raise ValueError(f"max_window_us ({max_window_us}) must be a positive multiple of slice_us ({slice_us})")
         if not 0 < r_range[0] < r_range[1]:
             raise ValueError(f"r_range must be (min, max) with 0 < min < max, got {r_range}")
         self.width, self.height = int(width), int(height)
@@ -127,6 +167,12 @@ class BallTracker:
         self.frame_sigma_px = float(frame_sigma_px)
         self.smooth = bool(smooth)
         self.smooth_lag_us = int(smooth_lag_us)
+        self.search_events, self.track_events = int(search_events), int(track_events)
+        self.max_window_us = int(max_window_us)
+        self._acc: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # slices joined into a window
+        self._acc_s0: int | None = None  # start of that window, µs
+        self._acc_n = 0
+        self._ball_rate = 0.0  # the tracked ball's events per µs near the prediction (recent windows)
         self._hot = HotPixelMap(width, height) if hot_pixels else None
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
@@ -139,7 +185,7 @@ class BallTracker:
         self._flight = -1
         self._misses = 0
         self._outliers = 0
-        self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple]] = []
+        self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple, bool]] = []
         self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
         self._final: list[Track] = []  # final rows, in chunks
         self._n_final_taken = 0
@@ -222,12 +268,18 @@ class BallTracker:
         """Time (µs) before which no further track rows will be emitted, ``None`` before any
         events were processed.
 
-        A flight's first rows are emitted when it is confirmed, up to ``confirm_slices``
-        detections (each at most two slices apart) after its first detection.
+        Rows still to come lie at or after the start of the window being joined, the first
+        tentative detection of a flight not yet confirmed (its rows are emitted when it is), and
+        the middle of the last slice (a frame there may still be fused).
         """
         if self._t_processed is None:
             return None
-        return self._t_processed - 2 * self.confirm_slices * self.slice_us
+        bound = self._t_processed - self.slice_us
+        if self._acc_s0 is not None:
+            bound = min(bound, self._acc_s0)
+        if self._tentative:
+            bound = min(bound, self._tentative[0][0])
+        return bound
 
     # ------------------------------------------------------------------ blocks and slices
     def _run(self, final: bool) -> None:
@@ -263,21 +315,41 @@ class BallTracker:
         idx = np.searchsorted(t, bounds, side="left")
         for k in range(len(bounds) - 1):
             s0, s1 = int(bounds[k]), int(bounds[k + 1])
-            m = (s0 + s1) // 2
-            self._frames_until(m)
+            self._frames_until((s0 + s1) // 2)
             i0, i1 = idx[k], idx[k + 1]
-            self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], m)
+            self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], s0, s1)
 
-    def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, m: int) -> None:
-        """One slice's events (hot pixels not yet removed: tracking removes them from the few
-        events near the ball only)."""
+    def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, s0: int, s1: int) -> None:
+        """One slice ``[s0, s1)``'s events (hot pixels not yet removed: tracking removes them from
+        the few events near the ball only)."""
         if self._kf is not None:
-            self._track_slice(t, x, y, m)
+            self._track_slice(t, x, y, s0, s1)
         if self._kf is None:
             if self._hot is not None:
                 keep = np.flatnonzero(self._hot.keep(y * self.width + x))
                 t, x, y = t.take(keep), x.take(keep), y.take(keep)
-            self._search_slice(t, x, y, m)
+            self._search_slice(t, x, y, s0, s1)
+
+    def _join(self, t, x, y, s0: int, s1: int, *, need: int | None = None, span_us: int | None = None):
+        """Add a slice to the window being joined; the whole window ``(t, x, y, start_us)`` once it
+        holds ``need`` events, is ``span_us`` or ``max_window_us`` long, else None (the slice is
+        kept for the next)."""
+        start = s0 if self._acc_s0 is None else self._acc_s0
+        self._acc.append((t, x, y))
+        self._acc_n += len(t)
+        long_enough = s1 - start >= min(self.max_window_us, self.max_window_us if span_us is None else span_us)
+        if not long_enough and (need is None or self._acc_n < need):
+            self._acc_s0 = start
+            return None
+        pieces = self._acc
+        self._drop_window()
+        if len(pieces) == 1:
+            return (*pieces[0], start)
+        return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]),
+                np.concatenate([p[2] for p in pieces]), start)
+
+    def _drop_window(self) -> None:
+        self._acc, self._acc_s0, self._acc_n = [], None, 0
 
     def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
         """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s).
@@ -287,8 +359,11 @@ class BallTracker:
         prediction is small enough that noise hardly reaches it and the fit's
         k-th-outermost rule absorbs the few strays.
         """
-        if len(t) > _MAX_FIT_EVENTS:  # even subsample in time
-            sub = np.linspace(0, len(t) - 1, _MAX_FIT_EVENTS).astype(np.int64)
+        # even subsample in time; a search keeps more, for the density filter to see a big ball's
+        # sparse disk as dense (fit_circle then takes _MAX_FIT_EVENTS of what is left)
+        keep = _MAX_FIT_EVENTS if center0 is not None else 4 * _MAX_FIT_EVENTS
+        if len(t) > keep:
+            sub = np.linspace(0, len(t) - 1, keep).astype(np.int64)
             t, x, y = t[sub], x[sub], y[sub]
         dt_s = (t - m) * 1e-6
         xc = x - velocity[0] * dt_s
@@ -302,8 +377,47 @@ class BallTracker:
             center0 = (float(xc.mean()), float(yc.mean()))
         return fit_circle(xc, yc, center0=center0, r_range=r_range, ignore=border)
 
-    def _track_slice(self, t, x, y, m) -> None:
+    def _candidates(self, x, y) -> list[tuple[tuple[int, int, int, int], bool]]:
+        """Candidate boxes of a search window, each with whether it comes from the coarse map: from
+        the fine density map, and for big balls (whose events spread thin over a large disk) also
+        from a map of 4x coarser cells."""
+        boxes = find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
+                                r_range=self.r_range)
+        out = [(b, False) for b in boxes]
+        coarse = 4 * self.cell_px
+        if self.r_range[1] >= 6 * coarse:
+            big = find_candidates(x, y, width=self.width, height=self.height, cell_px=coarse,
+                                  r_range=(max(self.r_range[0], 1.5 * coarse), self.r_range[1]), max_candidates=2)
+            out += [(b, True) for b in big if all(_iou(b, a) < 0.5 for a in boxes)]
+        return out
+
+    def _fit_split(self, t, x, y, m, velocity):
+        """The ball in a cluster whose rim fit failed because something touches it (an arm, a
+        racket, a second ball): round blobs of the cluster's event image (:func:`hough_circles`),
+        each refitted on its own events with its own velocity; the best ``(fit, velocity,
+        events)``, or ``(None, velocity, events)``."""
+        dt_s = (t - m) * 1e-6
+        xc, yc = x - velocity[0] * dt_s, y - velocity[1] * dt_s
+        best = (None, velocity, (t, x, y))
+        for cx, cy, r in hough_circles(xc, yc, r_range=self.r_range):
+            reach = 1.1 * r + 1.5  # Hough's radius is the blurred disk's: already a little large
+            sel = np.flatnonzero((xc - cx) ** 2 + (yc - cy) ** 2 < reach * reach)
+            if len(sel) < 40:
+                continue
+            ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
+            v = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
+            fit = self._fit(ts, xs, ys, m, (cx, cy), v, (max(self.r_range[0], 0.7 * r), min(self.r_range[1], 1.4 * r)))
+            if fit is None or (best[0] is not None and fit.score <= best[0].score):
+                continue
+            if _surrounded(xc, yc, fit) > SPLIT_MAX_SURROUNDED:  # a round part of a bigger blob
+                continue
+            best = (fit, v, (ts, xs, ys))
+        return best
+
+    def _track_slice(self, t, x, y, s0: int, s1: int) -> None:
         kf = self._kf
+        start = s0 if self._acc_s0 is None else self._acc_s0
+        m = max((start + s1) // 2, kf.t_us)  # a frame may have updated the filter inside the window
         state, cov = kf.predict(m)
         cx, cy, vx, vy, r = state[0], state[1], state[2], state[3], state[6]
         if cx < -r or cy < -r or cx > self.width + r or cy > self.height + r:
@@ -312,19 +426,25 @@ class BallTracker:
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
         reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
         # a box around the swept circle first (cheap on all events), then the moving circle
-        hx = reach + abs(vx) * self.slice_us * 0.5e-6
-        hy = reach + abs(vy) * self.slice_us * 0.5e-6
+        hx = reach + abs(vx) * (s1 - start) * 0.5e-6
+        hy = reach + abs(vy) * (s1 - start) * 0.5e-6
         box = np.flatnonzero((x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy))
         if self._hot is not None:
             box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
-        t, x, y = t.take(box), x.take(box), y.take(box)
+        # the window lasts as long as the ball needs to fire track_events at its recent rate, so
+        # that a ball lost from the prediction is missed after that time, not after max_window_us
+        span = self.track_events / max(self._ball_rate, 1e-9)
+        win = self._join(t.take(box), x.take(box), y.take(box), s0, s1, span_us=int(span))
+        if win is None:
+            return
+        t, x, y, start = win
         dt_s = (t - m) * 1e-6
         dx = x - vx * dt_s - cx
         dy = y - vy * dt_s - cy
         sel = dx * dx + dy * dy < reach * reach
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
         fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
-        if fit is None or fit.score < self.min_score:
+        if fit is None or fit.score < TRACK_SCORE_FACTOR * self.min_score:  # the gate vouches for the rest
             self._misses += 1
             if self._misses >= self.max_misses:
                 self._end_flight()
@@ -334,6 +454,7 @@ class BallTracker:
         dist = np.hypot(fit.cx - cx, fit.cy - cy)
         if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
             kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+            self._ball_rate = 0.5 * self._ball_rate + 0.5 * int(sel.sum()) / max(s1 - start, 1)
             self._scores.append(fit.score)
             self._emit(m)
             self._misses = self._outliers = 0
@@ -343,12 +464,17 @@ class BallTracker:
             if self._outliers >= 2 or self._misses >= self.max_misses:
                 self._end_flight()
 
-    def _search_slice(self, t, x, y, m) -> None:
+    def _search_slice(self, t, x, y, s0: int, s1: int) -> None:
+        win = self._join(t, x, y, s0, s1, need=self.search_events)
+        if win is None:
+            return
+        t, x, y, start = win
+        m = (start + s1) // 2
+        span = max(s1 - start, self.slice_us)
         best = None
         margin = 2 * self.cell_px
         rejected = []
-        for box in find_candidates(x, y, width=self.width, height=self.height, cell_px=self.cell_px,
-                                   r_range=self.r_range):
+        for box, coarse in self._candidates(x, y):
             # a cluster that was no ball in the last slices (a player...) is refitted only every
             # few slices: the search then stays cheap while such a cluster is in view
             skips = max((k for b, k in self._rejected if _iou(b, box) > 0.3), default=-1)
@@ -363,6 +489,10 @@ class BallTracker:
             ts, xs, ys = t[sel], x[sel], y[sel]
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
+            # a cluster of the fine map that is no circle may be a ball touching something
+            split = not coarse and (fit is None or fit.score < self.min_score)
+            if split:
+                fit, v0, (ts, xs, ys) = self._fit_split(ts, xs, ys, m, v0)
             if fit is None or fit.score < self.min_score:
                 rejected.append((box, 0))
                 continue
@@ -373,38 +503,51 @@ class BallTracker:
             inner = 0.8 * fit.r
             if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
                     and fit.cy + inner <= self.height - 1):
-                best = (fit, v0, (ts, xs, ys))
+                best = (fit, v0, (ts, xs, ys), split, box)
         self._rejected = rejected
         if best is None:
-            if self._tentative and m - self._tentative[-1][0] > 2 * self.slice_us:
+            if self._tentative and m - self._tentative[-1][0] > 2 * span:
                 self._tentative = []
             return
-        fit, v0, evs = best
+        fit, v0, evs, split, box = best
         if self._tentative:
-            tm, tf, tv, _ = self._tentative[-1]
+            tm, tf, tv = self._tentative[-1][:3]
             dt_s = (m - tm) * 1e-6
             px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
             ok = (np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25
-                  and m - tm <= 2 * self.slice_us)
+                  and m - tm <= 2 * span)
             if not ok:
                 self._tentative = []
             elif len(self._tentative) >= 1:
                 v0 = ((fit.cx - self._tentative[0][1].cx) / ((m - self._tentative[0][0]) * 1e-6),
                       (fit.cy - self._tentative[0][1].cy) / ((m - self._tentative[0][0]) * 1e-6))
-        self._tentative.append((m, fit, v0, evs))
+        self._tentative.append((m, fit, v0, evs, split))
         if len(self._tentative) >= self.confirm_slices:
+            if any(tent[4] for tent in self._tentative) and self._slow(fit):
+                # a round part of something bigger moving with it (a head on a body), not a ball
+                self._tentative = []
+                self._rejected.append((box, 0))
+                return
             self._start_flight()
+
+    def _slow(self, fit: CircleFit) -> bool:
+        """Whether the tentative detections moved less than ``SPLIT_MIN_SPEED_R_S`` radii/s."""
+        (ta, fa), (tb, fb) = self._tentative[0][:2], self._tentative[-1][:2]
+        speed = np.hypot(fb.cx - fa.cx, fb.cy - fa.cy) / max((tb - ta) * 1e-6, 1e-9)
+        return bool(speed < SPLIT_MIN_SPEED_R_S * fit.r)
 
     def _start_flight(self) -> None:
         # refit the tentative detections with the velocity of their displacement (better
         # motion compensation than each slice's own centroid velocity)
-        (ta, fa, _, _), (tb, fb, _, _) = self._tentative[0], self._tentative[-1]
+        (ta, fa), (tb, fb) = self._tentative[0][:2], self._tentative[-1][:2]
         v = ((fb.cx - fa.cx) / ((tb - ta) * 1e-6), (fb.cy - fa.cy) / ((tb - ta) * 1e-6))
         fits = []
-        for tm, f, _, (ts, xs, ys) in self._tentative:
+        for tm, f, _, (ts, xs, ys), _ in self._tentative:
             refit = self._fit(ts, xs, ys, tm, (f.cx, f.cy), v, self.r_range)
             fits.append((tm, refit if refit is not None and refit.score >= self.min_score else f))
         (t0, f0), *rest = fits
+        self._ball_rate = float(np.median([len(ts) / max(int(ts[-1]) - int(ts[0]), self.slice_us)
+                                           for _, _, _, (ts, _, _), _ in self._tentative]))
         self._flight += 1
         self._kf = CircleKalman(t0, (f0.cx, f0.cy, f0.r), velocity_px_s=v,
                                 velocity_sigma_px_s=0.2 * np.hypot(*v) + 50.0 * f0.r, sigma_px=f0.sigma_px,
@@ -419,6 +562,7 @@ class BallTracker:
         self._misses = self._outliers = 0
 
     def _end_flight(self) -> None:
+        self._drop_window()
         if self._kf is not None:
             self._finalise(ended=True)
         self._kf = None

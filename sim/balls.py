@@ -9,18 +9,19 @@ from .rotation import random_rotation, unit
 from .scene import Ball, Camera, Scene, court_background
 
 BALL_RADIUS_M = {"volleyball": 0.105, "soccer": 0.11, "basketball": 0.12, "tennis": 0.033, "logo": 0.1,
-                 "baseball": 0.0366, "tabletennis": 0.020}
+                 "baseball": 0.0366, "tabletennis": 0.020, "plain": 0.1}
 """Physical ball radii (m) used by the pinhole projection."""
 
 
 def make_ball(cam: Camera, *, texture: str, radius_px: float, center_px, velocity_px_s, accel_px_s2,
               axis, omega_rad_s: float, R0, ball_radius_m: float | None = None, gain: float = 1.0,
-              hits=()) -> Ball:
+              hits=(), depth_velocity_m_s: float = 0.0) -> Ball:
     """A :class:`Ball` whose image at ``t = 0`` is the circle ``(center_px, radius_px)``.
 
     In pinhole mode the ball is placed along the ray through ``center_px`` at the
     distance that gives ``radius_px``; image velocity/acceleration become motion
-    parallel to the image plane at that depth. ``hits`` holds
+    parallel to the image plane at that depth, plus ``depth_velocity_m_s`` along the optical axis
+    (pinhole only). ``hits`` holds
     ``(t_s, velocity_px_s (2,), axis (3,), omega_rad_s)`` with image velocities.
     """
     c = np.asarray(center_px, np.float64)
@@ -36,7 +37,7 @@ def make_ball(cam: Camera, *, texture: str, radius_px: float, center_px, velocit
     centre = dist * ray
     z = centre[2]
     s = z / cam.focal_px
-    return Ball(texture=texture, radius=rm, center=centre, velocity=[vel[0] * s, vel[1] * s, 0.0],
+    return Ball(texture=texture, radius=rm, center=centre, velocity=[vel[0] * s, vel[1] * s, float(depth_velocity_m_s)],
                 accel=[acc[0] * s, acc[1] * s, 0.0], axis=axis, omega_rad_s=omega_rad_s, R0=R0, gain=gain,
                 hits=tuple((t, [v[0] * s, v[1] * s, 0.0], a, w) for t, v, a, w in hits))
 

@@ -816,6 +816,63 @@ def noise_events(width: int, height: int, t0_us: int, t1_us: int, rng: np.random
     return ev[np.argsort(ev["t"], kind="stable")], hot_xy
 
 
+def flicker_events(width: int, height: int, t0_us: int, t1_us: int, rng: np.random.Generator, *,
+                   freq_hz: float = 100.0, depth: float = 0.05, box=None, threshold: float = 0.15,
+                   mismatch_sigma: float = 0.03, min_threshold: float = 0.05,
+                   latency_us: float = 50.0) -> np.ndarray:
+    """Events of pixels lit by a flickering light (LED drivers, tubes) over ``[t0_us, t1_us)``.
+
+    The light is ``1 + depth sin(2 pi freq_hz t)`` (100 Hz / 120 Hz on 50 Hz / 60 Hz mains), so the
+    log brightness of every lit pixel swings by ``log((1 + depth) / (1 - depth))`` whatever its
+    brightness (pixels well above the dark level). Each pixel has its own threshold
+    (``threshold`` +- ``mismatch_sigma``, floored at ``min_threshold``) and a random reference
+    level, and fires ON events on the rising half and OFF events on the falling half at the
+    crossings of its level lattice, each delayed by an exponential latency of mean
+    ``latency_us``. ``box`` ``(x0, y0, x1, y1)`` (px, exclusive ends) limits the lit area
+    (default: the whole sensor).
+
+    Returns
+    -------
+    ndarray of EVENT_DTYPE, sorted by time.
+    """
+    if not 0 < depth < 1:
+        raise ValueError(f"flicker depth must be in (0, 1), got {depth}")
+    if freq_hz <= 0:
+        raise ValueError(f"flicker frequency must be positive, got {freq_hz}")
+    x0, y0, x1, y1 = (0, 0, width, height) if box is None else map(int, box)
+    yy, xx = np.mgrid[max(y0, 0):min(y1, height), max(x0, 0):min(x1, width)]
+    xx, yy = xx.ravel(), yy.ravel()
+    c = np.maximum(threshold + mismatch_sigma * rng.standard_normal(xx.size), min_threshold)
+    ref = rng.uniform(0.0, 1.0, xx.size) * c
+    lo, hi = np.log1p(-depth), np.log1p(depth)
+    k0 = np.ceil((lo - ref) / c).astype(np.int64)
+    n_lev = np.floor((hi - ref) / c).astype(np.int64) - k0 + 1  # lattice levels inside the swing
+    fire = n_lev >= 2
+    pix = np.repeat(np.flatnonzero(fire), n_lev[fire])
+    j = np.arange(pix.size) - np.repeat(np.cumsum(n_lev[fire]) - n_lev[fire], n_lev[fire])
+    level = ref[pix] + (k0[pix] + j) * c[pix]
+    top = j == np.repeat(n_lev[fire] - 1, n_lev[fire])
+    s = np.clip(np.expm1(level) / depth, -1.0, 1.0)
+    period_us = 1e6 / freq_hz
+    # ON at every level but the lowest on the way up, OFF at every level but the highest on the way down
+    on = j > 0
+    ph = np.r_[np.arcsin(s[on]), np.pi - np.arcsin(s[~top])]
+    px = np.r_[pix[on], pix[~top]]
+    pol = np.r_[np.ones(on.sum(), np.int8), np.zeros((~top).sum(), np.int8)]
+    off_us = np.mod(ph / (2 * np.pi), 1.0) * period_us
+    n_cyc = int(np.ceil((t1_us - t0_us) / period_us)) + 1
+    cyc0 = np.floor(t0_us / period_us)
+    t = ((cyc0 + np.arange(n_cyc))[:, None] * period_us + off_us[None, :]).ravel()
+    t = t + rng.exponential(latency_us, t.size) if latency_us > 0 else t
+    keep = (t >= t0_us) & (t < t1_us)
+    ev = np.empty(int(keep.sum()), EVENT_DTYPE)
+    ev["t"] = np.floor(t[keep]).astype(np.int64)
+    ev["x"] = np.tile(xx[px], n_cyc)[keep]
+    ev["y"] = np.tile(yy[px], n_cyc)[keep]
+    ev["p"] = np.tile(pol, n_cyc)[keep]
+    return ev[np.argsort(ev["t"], kind="stable")]
+
+
 def merge(*batches: np.ndarray) -> np.ndarray:
     """Merge event batches into one array sorted by ``t`` (stable)."""
     ev = np.concatenate([np.asarray(b, EVENT_DTYPE) for b in batches]) if batches else np.zeros(0, EVENT_DTYPE)

@@ -11,11 +11,12 @@ import numpy as np
 
 from capture.events import TRIGGER_DTYPE, make_triggers
 from .balls import BALL_RADIUS_M, make_ball
-from .esim import SensorModel, SensorState, get_sensor_model, merge, noise_events, sensor_truth, simulate
+from .esim import (SensorModel, SensorState, flicker_events, get_sensor_model, merge, noise_events, sensor_truth,
+                   simulate)
 from .frames import SyncBox, render_frames
 from .recording import Recording
 from .rotation import random_rotation, unit
-from .scene import Camera, Player, Scene, court_background
+from .scene import Arm, Camera, Player, Scene, court_background
 
 G_M_S2 = 9.81
 
@@ -39,7 +40,8 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
            sync: SyncBox | bool | None = None, sensor: str | SensorModel = "ideal", threshold: float | None = None,
            mismatch_sigma: float | None = None, refractory_us: float | None = None, step_px: float = 0.25,
            projection: str = "orthographic",
-           focal_px: float = 1000.0, n_events: int | None = None, t0_us: int = 0,
+           focal_px: float = 1000.0, depth_velocity_m_s: float = 0.0, flicker_hz: float | None = None,
+           flicker_depth: float = 0.1, flicker_box=None, n_events: int | None = None, t0_us: int = 0,
            track_dt_us: int = 1000, hits=(), seed: int = 0) -> Recording:
     """Simulate one ball flight across the sensor.
 
@@ -60,8 +62,10 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     background : {"court", "plain"}
     noise_rate_hz : float
         Background-activity noise per pixel (Hz); ``hot_pixels`` pixels fire at ``hot_rate_hz``.
-    distractors : sequence of {"player", "ball"}
-        A walking player-like blob and/or a second (soccer) ball crossing the view.
+    distractors : sequence of {"player", "ball", "arm"}
+        A walking player-like blob, a second (soccer) ball crossing the view, and/or an arm
+        (0.6 m by 9 cm at the ball's scale) swinging past the ball's path at mid-flight, its
+        hand passing a few pixels from the ball.
     fps : float, optional
         Frame camera rate (60/120/240/480 ...); None: no frames.
     exposure_s : float, optional
@@ -82,6 +86,12 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         Override the sensor model's fields (log units, log units, µs).
     step_px : float
         Largest image motion per render step (px; see :func:`sim.esim.simulate`).
+    depth_velocity_m_s : float
+        Speed of the ball along the optical axis (m/s, + away from the camera), pinhole only: the
+        ball looms (negative) or recedes (positive) and its image radius changes.
+    flicker_hz, flicker_depth, flicker_box
+        A light flickering at ``flicker_hz`` (100 / 120 Hz) by ``flicker_depth`` over the area
+        ``flicker_box`` (default the whole sensor): see :func:`sim.esim.flicker_events`.
     n_events : int, optional
         Stop the ball simulation at this many events.
     track_dt_us : int
@@ -128,8 +138,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
             raise ValueError(f"hit {h!r} lacks {sorted(missing)}")
         ax_h = unit(h["axis"]) * (1 if h["rps"] >= 0 else -1)
         hit_list.append((float(h["t_s"]), tuple(map(float, h["velocity_px_s"])), ax_h, 2 * np.pi * abs(h["rps"])))
+    if depth_velocity_m_s and projection != "pinhole":
+        raise ValueError("depth_velocity_m_s needs projection='pinhole' (an orthographic ball cannot loom)")
     ball = make_ball(cam, texture=texture, radius_px=radius_px, center_px=start_px, velocity_px_s=velocity_px_s,
-                     accel_px_s2=(0.0, g), axis=axis, omega_rad_s=omega, R0=R0, hits=hit_list)
+                     accel_px_s2=(0.0, g), axis=axis, omega_rad_s=omega, R0=R0, hits=hit_list,
+                     depth_velocity_m_s=depth_velocity_m_s)
     objects, dis_truth = [], []
     for kind in distractors:
         if kind == "player":
@@ -152,8 +165,21 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
             objects.append(b2)
             dis_truth.append({"kind": "ball", "texture": "soccer", "radius_px": r2, "start_px": list(c2),
                               "velocity0_px_s": list(v2), "axis": b2.axis.tolist(), "omega_rad_s": b2.omega_rad_s})
+        elif kind == "arm":
+            t_mid = 0.5 * duration_s
+            cx, cy, r_mid = ball.circle(cam, [t_mid])[0]
+            length, wid = 0.6 * px_per_m, 0.09 * px_per_m
+            side = dis_rng.choice([-1, 1])
+            gap = dis_rng.uniform(2.0, 6.0)  # px between the hand and the ball at mid-flight
+            omega_arm = side * dis_rng.uniform(6.0, 12.0)  # rad/s, the hand moving past the ball
+            pivot = (cx + side * (r_mid + 0.5 * wid + gap), cy + length)
+            a = Arm(pivot_px=pivot, length_px=length, width_px=wid, angle0_rad=-np.pi / 2 - omega_arm * t_mid,
+                    omega_rad_s=omega_arm)
+            objects.append(a)
+            dis_truth.append({"kind": "arm", "pivot_px": list(pivot), "length_px": length, "width_px": wid,
+                              "angle0_rad": a.angle0_rad, "omega_rad_s": omega_arm})
         else:
-            raise ValueError(f"unknown distractor {kind!r}; choose 'player' or 'ball'")
+            raise ValueError(f"unknown distractor {kind!r}; choose 'player', 'ball' or 'arm'")
     objects.append(ball)  # the tracked ball is in front
     if background not in ("court", "plain"):
         raise ValueError(f"background must be 'court' or 'plain', got {background!r}")
@@ -163,6 +189,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     t_end_us = t0_us + int(round(duration_s * 1e6)) if n_events is None or ev.size < n_events else int(ev["t"][-1]) + 1
     noise, hot_xy = noise_events(width, height, t0_us, t_end_us, noise_rng, rate_hz_per_px=noise_rate_hz,
                                  hot_pixels=hot_pixels, hot_rate_hz=hot_rate_hz)
+    if flicker_hz:
+        noise = merge(noise, flicker_events(width, height, t0_us, t_end_us, noise_rng, freq_hz=flicker_hz,
+                                            depth=flicker_depth, box=flicker_box, threshold=state.model.threshold,
+                                            mismatch_sigma=state.model.mismatch_sigma,
+                                            min_threshold=state.model.min_threshold))
     ev = merge(ev, noise)
     # ground-truth circle
     t_us = np.arange(t0_us, t_end_us, int(track_dt_us), dtype=np.int64)
@@ -177,11 +208,15 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         "axis": axis, "omega_rad_s": omega, "rps": float(rps), "radius_px": float(radius_px),
         "center": c_first[:2].copy(), "velocity_px_s": ball.image_velocity(cam, [(t_first - t0_us) * 1e-6])[0],
         "texture": texture, "seed": seed, "width": width, "height": height, "projection": projection,
+        "focal_px": float(focal_px), "principal_px": list(map(float, cam.principal_px)),
         "t0_us": t0_us, "t_first_us": t_first, "t_last_us": int(ev["t"][-1]) if ev.size else t0_us,
         "R0": R0, "start_px": np.asarray(start_px, float), "velocity0_px_s": np.asarray(velocity_px_s, float),
         "gravity_px_s2": g, "threshold": state.model.threshold, "mismatch_sigma": state.model.mismatch_sigma,
         "sensor": sensor_truth(sensor, state.model), "n_events": int(ev.size),
         "noise_rate_hz": noise_rate_hz, "hot_pixels": hot_xy, "distractors": dis_truth,
+        "flicker": None if not flicker_hz else {"freq_hz": float(flicker_hz), "depth": float(flicker_depth),
+                                                "box": None if flicker_box is None else list(flicker_box)},
+        "depth_velocity_m_s": float(depth_velocity_m_s),
         "track": {"t_us": t_us, "cx": circ[:, 0], "cy": circ[:, 1], "r": circ[:, 2],
                   "vx": vel[:, 0], "vy": vel[:, 1], "visible": visible, "flight": ball.segment_at(ts)},
         "segments": [{"t_start_us": t0_us + int(round(t_seg * 1e6)), "axis": ax_seg, "omega_rad_s": float(om_seg),

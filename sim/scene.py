@@ -178,10 +178,14 @@ class Ball:
         return cam.focal_px * (v[:, :2] * z - c[:, :2] * v[:, 2:3]) / (z * z)
 
     def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
-        """Upper bound of any visible point's image speed at ``t_s`` (rim + translation)."""
+        """Upper bound of any visible point's image speed at ``t_s`` (rim + translation + looming)."""
         cx, cy, r = self.circle(cam, [t_s])[0]
         omega = self.spin_at([t_s])[1][0]
-        return float(np.hypot(*self.image_velocity(cam, [t_s])[0]) + omega * r * 1.05)
+        loom = 0.0
+        if cam.pinhole and self.velocity_at([t_s])[0, 2] != 0.0:  # the rim moves as the radius changes
+            dt = 1e-4
+            loom = 1.05 * abs(self.circle(cam, [t_s + dt])[0, 2] - r) / dt
+        return float(np.hypot(*self.image_velocity(cam, [t_s])[0]) + omega * r * 1.05 + loom)
 
     def footprint(self, cam: Camera, t0_s: float, t1_s: float):
         """Swept capsule over ``[t0_s, t1_s]``: (start uv, end uv, radius px)."""
@@ -304,6 +308,51 @@ class Player:
         cov = np.maximum(covs[0], covs[1])
         I = np.where(covs[1] > 0, vals[1], vals[0])
         return I, cov
+
+
+@dataclass
+class Arm:
+    """Swinging arm (or racket handle): a capsule turning about a shoulder pivot.
+
+    Geometry in pixels (orthographic sensor coordinates): from ``pivot_px`` the arm
+    points at ``angle0_rad + omega_rad_s t`` (image angle, x right, y down), is
+    ``length_px`` long and ``width_px`` wide, and ends in a rounded hand.
+    """
+
+    pivot_px: tuple[float, float] = (300.0, 400.0)
+    length_px: float = 120.0
+    width_px: float = 30.0
+    angle0_rad: float = -np.pi / 2
+    omega_rad_s: float = 10.0
+    skin: float = 0.55
+
+    def _tip(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = self.angle0_rad + self.omega_rad_s * t
+        return self.pivot_px[0] + self.length_px * np.cos(a), self.pivot_px[1] + self.length_px * np.sin(a)
+
+    def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        """Fastest image motion (px/s): the hand's edge."""
+        return abs(self.omega_rad_s) * (self.length_px + self.width_px)
+
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) over ``[t0_s, t1_s]``."""
+        t = np.linspace(t0_s, t1_s, max(2, int(abs(self.omega_rad_s) * abs(t1_s - t0_s) / 0.1) + 2))
+        x, y = self._tip(t)
+        m = 0.5 * self.width_px + 2
+        return (min(x.min(), self.pivot_px[0]) - m, min(y.min(), self.pivot_px[1]) - m,
+                max(x.max(), self.pivot_px[0]) + m, max(y.max(), self.pivot_px[1]) + m)
+
+    def render(self, cam: Camera, u, v, t_s, light, ambient):
+        """Brightness and anti-aliased coverage (K, N) at pixels ``(u, v)``, times ``t_s`` (K,)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
+        x1, y1 = self._tip(t)
+        x0, y0 = self.pivot_px
+        dx, dy = x1 - x0, y1 - y0
+        s = np.clip(((u[None, :] - x0) * dx + (v[None, :] - y0) * dy) / (dx * dx + dy * dy), 0.0, 1.0)
+        d = np.hypot(u[None, :] - (x0 + s * dx), v[None, :] - (y0 + s * dy))
+        cov = np.clip(0.5 * self.width_px - d + 0.5, 0.0, 1.0)
+        # a sleeve edge across the arm at 40 % of its length (the forearm's own texture)
+        return np.where(s < 0.4, 0.2, self.skin), cov
 
 
 def disjoint_groups(items, n_pixels: int) -> list[tuple[np.ndarray, int]]:

@@ -136,6 +136,11 @@ def logo(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0.85,
     return ball_albedo + w * (logo_albedo - ball_albedo)
 
 
+def plain(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0.8) -> np.ndarray:
+    """Plain ball of one colour: only its rim (and shading) can fire events."""
+    return np.full(len(np.asarray(q)), float(ball_albedo))
+
+
 def _segment_distance(x: np.ndarray, y: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
     """Euclidean distance of points ``(x, y)`` from the segment ``(x0, y0)``-``(x1, y1)``."""
     dx, dy = x1 - x0, y1 - y0
@@ -228,7 +233,7 @@ def tabletennis(q: np.ndarray, edge_rad: float = 0.01, *, ball_albedo: float = 0
 
 TEXTURES: dict[str, Callable[..., np.ndarray]] = {
     "volleyball": volleyball, "soccer": soccer, "basketball": basketball,
-    "tennis": tennis, "logo": logo, "baseball": baseball, "tabletennis": tabletennis,
+    "tennis": tennis, "logo": logo, "baseball": baseball, "tabletennis": tabletennis, "plain": plain,
 }
 """Texture functions by name."""
 

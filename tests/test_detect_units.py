@@ -23,14 +23,14 @@ def _disk(rng, n, cx, cy, r, ring=False):
     return cx + rr * np.cos(a), cy + rr * np.sin(a)
 
 
-def _ball_events(rng, t0, t1, c0, v, r, rate=2e6, g=0.0):
+def _ball_events(rng, t0, t1, c0, v, r, rate=2e6, g=0.0, w=W, h=H):
     n = int(rate * (t1 - t0) * 1e-6)
     t = np.sort(rng.integers(t0, t1, n))
     x, y = _disk(rng, n, 0.0, 0.0, r)
     dt = (t - t0) * 1e-6
     x = np.floor(x + c0[0] + v[0] * dt + 0.5)
     y = np.floor(y + c0[1] + v[1] * dt + 0.5 * g * dt * dt + 0.5)
-    ok = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+    ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     return t[ok], x[ok], y[ok]
 
 
@@ -300,3 +300,52 @@ def test_tracker_refuses_bad_input_on_one_line():
     with pytest.raises(DetectInputError, match="before the previous batch's last event"):
         tracker.update(ev[: len(ev) // 2])
     assert tracker.last_t_us == int(ev["t"][-1])
+
+
+def test_sparse_ball_is_tracked_by_joining_slices():
+    # a few tens of kev/s in all (a 128x128 sensor, a dim scene): 2 ms hold ~40 ball events, too few
+    # for a fit; windows are joined until they hold enough
+    rng = np.random.default_rng(21)
+    c0, v = (40.0, 120.0), (400.0, -60.0)
+    ball = _ball_events(rng, 0, 400_000, c0, v, 12.0, rate=20e3)
+    ev = _events([ball] + _clutter(rng, 0, 400_000, noise_rate=5e3, hot=2, blob=False))
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    assert len(tr.flight_ids()) == 1
+    assert tr.t_us.min() < 60_000 and tr.t_us.max() > 340_000  # the whole flight
+    ex, ey = _truth(tr.t_us, c0, v)
+    assert np.median(np.hypot(tr.cx - ex, tr.cy - ey)) < 1.0 and np.median(np.abs(tr.r - 12.0)) < 1.0
+    # with windows capped at one slice the same input gives nothing
+    assert len(track_ball(ev, width=W, height=H, r_range=(5, 40), max_window_us=2000)) == 0
+    with pytest.raises(ValueError, match="max_window_us"):
+        BallTracker(W, H, max_window_us=3000)
+
+
+def test_ball_touching_an_arm_is_told_apart():
+    # a bar (an arm) as dense as the ball, 4 px from its rim and moving with it: one cluster, no
+    # circle as a whole
+    rng = np.random.default_rng(22)
+    c0, v = (60.0, 120.0), (1500.0, 0.0)
+    ball = _ball_events(rng, 0, 60_000, c0, v, 10.0)
+    n = int(4e6 * 0.06)
+    t = np.sort(rng.integers(0, 60_000, n))
+    x = np.rint(c0[0] + 10 + 4 + rng.uniform(0, 9, n) + v[0] * t * 1e-6)
+    y = np.rint(c0[1] - 30 + rng.uniform(0, 70, n))
+    ev = _events([ball, (t, x, y)])
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    assert len(tr) > 25 and len(tr.flight_ids()) == 1
+    ex, ey = _truth(tr.t_us, c0, v)
+    err = np.hypot(tr.cx - ex, tr.cy - ey)
+    assert np.median(err) < 0.5 and np.percentile(err, 90) < 1.0
+    assert np.median(np.abs(tr.r - 10.0)) < 1.0
+
+
+def test_big_ball_is_found_with_the_default_radius_range():
+    rng = np.random.default_rng(23)
+    c0, v = (200.0, 240.0), (2000.0, 0.0)
+    ev = _events([_ball_events(rng, 0, 40_000, c0, v, 140.0, rate=8e6, w=640, h=480)])
+    tr = BallTracker(640, 480)
+    tr.update(ev)
+    out = tr.finish()
+    assert len(out.flight_ids()) == 1
+    ex, ey = _truth(out.t_us, c0, v)
+    assert np.median(np.hypot(out.cx - ex, out.cy - ey)) < 1.0 and np.median(np.abs(out.r - 140.0)) < 1.5

@@ -99,7 +99,7 @@ def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path
     rows = track_ball(ev, width=W, height=H)
     s0 = int(rows.t_us[8]) + 1000  # thin out the slice after row 8: no fit there
     hole = (ev["t"] >= s0) & (ev["t"] < s0 + 2000)
-    ev = ev[~hole | (np.random.default_rng(0).random(len(ev)) < 0.01)]
+    ev = ev[~hole | (np.random.default_rng(0).random(len(ev)) < 0.001)]
     whole = track_ball(ev, width=W, height=H)
     assert np.diff(whole.t_us).max() >= 4000
     path = tmp_path / "gap"

@@ -316,6 +316,13 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
         review.close()
     if writer is None:
         return None
+    if writer.write_error is None:  # the disk may fill on the last commit: the store then says so
+        with lock:
+            try:
+                writer.flush()
+            except OSError as exc:
+                reason = f"write error: {' '.join(str(exc).split())}"
+                messages.append(f"stopped on a write error ({' '.join(str(exc).split())})")
     recording = {"stop_reason": reason,
                  "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     if stats is not None:
