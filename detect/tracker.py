@@ -50,16 +50,20 @@ _MAX_FIT_EVENTS = 4000
 _HOT_EVERY = 4
 """The hot-pixel map is refreshed from one block in this many (hot pixels persist)."""
 
-TRACK_SCORE_FACTOR = 1.0
-"""While tracking, a fit inside the gate needs only this fraction of ``min_score`` (a plain ball lit
-from one side, or seen along its motion, shows only part of its rim)."""
+_SPARSE_FIT_EVENTS = 1000
+"""Tracking windows with fewer events than this drop isolated events before the fit."""
 
 _REJECT_SKIP = 3
 """Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
 
 
-SPLIT_MAX_SURROUNDED = 0.5
-"""A ball told apart from what touches it has events around it on at most this share of its sides."""
+MAX_SURROUNDED = 0.5
+"""A ball found by telling it apart from what touches it has events around it on at most this share
+of its sides (more: it is a round part of something bigger)."""
+
+MAX_SURROUNDED_TRACKING = 0.75
+"""A ball measured while tracking has events around it on at most this share of its sides (more: it
+is lost in clutter, e.g. a flickering light, and the window is no measurement)."""
 
 SPLIT_MIN_SPEED_R_S = 25.0
 """A flight found only by telling a ball apart from what touches it must move at least this many
@@ -79,6 +83,11 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
     sector = ((np.arctan2(dy[ring], dx[ring]) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
     dens_ring = np.bincount(sector, minlength=n_sectors) / (np.pi * (r1 * r1 - r0 * r0) / n_sectors)
     return float(np.mean(dens_ring >= 0.3 * dens_in))
+
+
+def _inside(a: CircleFit, b: CircleFit) -> bool:
+    """Whether circle ``a`` lies inside the larger circle ``b`` (to within a pixel)."""
+    return a.r < b.r and np.hypot(a.cx - b.cx, a.cy - b.cy) + a.r <= b.r + 1.0
 
 
 class DetectInputError(ValueError):
@@ -173,6 +182,7 @@ class BallTracker:
         self._acc_s0: int | None = None  # start of that window, µs
         self._acc_n = 0
         self._ball_rate = 0.0  # the tracked ball's events per µs near the prediction (recent windows)
+        self._outlier_fits: list = []  # fits outside the gate since the last update (a hit, a bounce?)
         self._hot = HotPixelMap(width, height) if hot_pixels else None
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
@@ -186,7 +196,7 @@ class BallTracker:
         self._misses = 0
         self._outliers = 0
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple, bool]] = []
-        self._rejected: list[tuple[tuple[int, int, int, int], int]] = []
+        self._rejected: list[tuple[tuple[int, int, int, int], int, bool]] = []  # (box, skips, coarse)
         self._final: list[Track] = []  # final rows, in chunks
         self._n_final_taken = 0
         self._flight_final = 0  # updates of the current flight whose rows are final
@@ -357,7 +367,9 @@ class BallTracker:
         Without ``center0`` (search), isolated events are dropped first and the
         centroid is the start; with it (tracking), the window around the
         prediction is small enough that noise hardly reaches it and the fit's
-        k-th-outermost rule absorbs the few strays.
+        k-th-outermost rule absorbs the few strays - unless the window is sparse
+        (fewer than ``_SPARSE_FIT_EVENTS``: a dim ball, noise a large share), where
+        isolated events are dropped too.
         """
         # even subsample in time; a search keeps more, for the density filter to see a big ball's
         # sparse disk as dense (fit_circle then takes _MAX_FIT_EVENTS of what is left)
@@ -369,11 +381,12 @@ class BallTracker:
         xc = x - velocity[0] * dt_s
         yc = y - velocity[1] * dt_s
         border = (x == 0) | (y == 0) | (x == self.width - 1) | (y == self.height - 1)
-        if center0 is None:
+        if center0 is None or len(xc) < _SPARSE_FIT_EVENTS:
             good = density_filter(xc, yc, min_neighbours=1)
             if not good.any():
                 return None
             xc, yc, border = xc[good], yc[good], border[good]
+        if center0 is None:
             center0 = (float(xc.mean()), float(yc.mean()))
         return fit_circle(xc, yc, center0=center0, r_range=r_range, ignore=border)
 
@@ -399,6 +412,7 @@ class BallTracker:
         dt_s = (t - m) * 1e-6
         xc, yc = x - velocity[0] * dt_s, y - velocity[1] * dt_s
         best = (None, velocity, (t, x, y))
+        found = []
         for cx, cy, r in hough_circles(xc, yc, r_range=self.r_range):
             reach = 1.1 * r + 1.5  # Hough's radius is the blurred disk's: already a little large
             sel = np.flatnonzero((xc - cx) ** 2 + (yc - cy) ** 2 < reach * reach)
@@ -407,12 +421,11 @@ class BallTracker:
             ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
             v = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, (cx, cy), v, (max(self.r_range[0], 0.7 * r), min(self.r_range[1], 1.4 * r)))
-            if fit is None or (best[0] is not None and fit.score <= best[0].score):
-                continue
-            if _surrounded(xc, yc, fit) > SPLIT_MAX_SURROUNDED:  # a round part of a bigger blob
-                continue
-            best = (fit, v, (ts, xs, ys))
-        return best
+            if fit is not None and fit.score >= self.min_score and _surrounded(xc, yc, fit) <= MAX_SURROUNDED:
+                found.append((fit, v, (ts, xs, ys)))
+        # a circle inside another (a seam, the bright half of the ball) is not the ball
+        found = [f for f in found if not any(_inside(f[0], g[0]) for g in found if g is not f)]
+        return max(found, key=lambda f: f[0].score, default=best)
 
     def _track_slice(self, t, x, y, s0: int, s1: int) -> None:
         kf = self._kf
@@ -426,8 +439,9 @@ class BallTracker:
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
         reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
         # a box around the swept circle first (cheap on all events), then the moving circle
-        hx = reach + abs(vx) * (s1 - start) * 0.5e-6
-        hy = reach + abs(vy) * (s1 - start) * 0.5e-6
+        around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
+        hx = around + abs(vx) * (s1 - start) * 0.5e-6
+        hy = around + abs(vy) * (s1 - start) * 0.5e-6
         box = np.flatnonzero((x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy))
         if self._hot is not None:
             box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
@@ -444,7 +458,9 @@ class BallTracker:
         sel = dx * dx + dy * dy < reach * reach
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
         fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
-        if fit is None or fit.score < TRACK_SCORE_FACTOR * self.min_score:  # the gate vouches for the rest
+        if fit is not None and _surrounded(dx + cx, dy + cy, fit) > MAX_SURROUNDED_TRACKING:
+            fit = None  # the ball is in clutter (a flickering light, a body behind it): no measurement
+        if fit is None or fit.score < self.min_score:
             self._misses += 1
             if self._misses >= self.max_misses:
                 self._end_flight()
@@ -458,11 +474,18 @@ class BallTracker:
             self._scores.append(fit.score)
             self._emit(m)
             self._misses = self._outliers = 0
+            self._outlier_fits = []
         else:
             self._outliers += 1
             self._misses += 1
+            ts, xs, ys = t[sel], x[sel], y[sel]
+            v_own = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
+            self._outlier_fits.append((m, fit, v_own, (ts, xs, ys), False))
             if self._outliers >= 2 or self._misses >= self.max_misses:
+                # hit or bounce: the outlying fits are the next flight's first detections
+                seeds = self._outlier_fits[-self._outliers:] if self._outliers >= 2 else []
                 self._end_flight()
+                self._tentative = seeds
 
     def _search_slice(self, t, x, y, s0: int, s1: int) -> None:
         win = self._join(t, x, y, s0, s1, need=self.search_events)
@@ -477,12 +500,12 @@ class BallTracker:
         for box, coarse in self._candidates(x, y):
             # a cluster that was no ball in the last slices (a player...) is refitted only every
             # few slices: the search then stays cheap while such a cluster is in view
-            skips = max((k for b, k in self._rejected if _iou(b, box) > 0.3), default=-1)
+            skips = max((k for b, k, c in self._rejected if c == coarse and _iou(b, box) > 0.3), default=-1)
             edge = 2 * self.cell_px  # a ball coming in over the border is fitted every slice
             at_border = (box[0] <= edge or box[1] <= edge or box[2] >= self.width - edge
                          or box[3] >= self.height - edge)
             if 0 <= skips < _REJECT_SKIP and not at_border:
-                rejected.append((box, skips + 1))
+                rejected.append((box, skips + 1, coarse))
                 continue
             x0, y0, x1, y1 = box
             sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
@@ -494,7 +517,7 @@ class BallTracker:
             if split:
                 fit, v0, (ts, xs, ys) = self._fit_split(ts, xs, ys, m, v0)
             if fit is None or fit.score < self.min_score:
-                rejected.append((box, 0))
+                rejected.append((box, 0, coarse))
                 continue
             if best is not None and fit.score <= best[0].score:
                 continue
@@ -503,7 +526,7 @@ class BallTracker:
             inner = 0.8 * fit.r
             if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
                     and fit.cy + inner <= self.height - 1):
-                best = (fit, v0, (ts, xs, ys), split, box)
+                best = (fit, v0, (ts, xs, ys), split, (box, coarse))
         self._rejected = rejected
         if best is None:
             if self._tentative and m - self._tentative[-1][0] > 2 * span:
@@ -523,10 +546,10 @@ class BallTracker:
                       (fit.cy - self._tentative[0][1].cy) / ((m - self._tentative[0][0]) * 1e-6))
         self._tentative.append((m, fit, v0, evs, split))
         if len(self._tentative) >= self.confirm_slices:
-            if any(tent[4] for tent in self._tentative) and self._slow(fit):
+            if all(tent[4] for tent in self._tentative) and self._slow(fit):
                 # a round part of something bigger moving with it (a head on a body), not a ball
                 self._tentative = []
-                self._rejected.append((box, 0))
+                self._rejected.append((box[0], 0, box[1]))
                 return
             self._start_flight()
 
@@ -563,6 +586,7 @@ class BallTracker:
 
     def _end_flight(self) -> None:
         self._drop_window()
+        self._outlier_fits = []
         if self._kf is not None:
             self._finalise(ended=True)
         self._kf = None
