@@ -38,6 +38,8 @@ class CircleFit:
         Standard deviation of the centre estimate, px.
     n_events : int
         Events used (after noise filtering).
+    coverage : float
+        Share of the angular sectors whose boundary point lies on the fitted rim, 0..1.
     """
 
     cx: float
@@ -46,6 +48,7 @@ class CircleFit:
     score: float
     sigma_px: float
     n_events: int
+    coverage: float = 1.0
 
 
 def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
@@ -185,7 +188,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
     sigma_px = float(np.sqrt(2.0 / n_in) * max(rms, 0.3))
-    return CircleFit(cx, cy, r, float(score), sigma_px, n)
+    return CircleFit(cx, cy, r, float(score), sigma_px, n, float(coverage))
 
 
 def hough_circles(x: np.ndarray, y: np.ndarray, *, r_range: tuple[float, float], max_circles: int = 3,

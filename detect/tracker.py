@@ -65,6 +65,10 @@ MAX_SURROUNDED_TRACKING = 0.75
 """A ball measured while tracking has events around it on at most this share of its sides (more: it
 is lost in clutter, e.g. a flickering light, and the window is no measurement)."""
 
+SPLIT_MIN_COVERAGE = 0.7
+"""A ball told apart from what touches it shows its rim on at least this share of its sides (the
+rounded end of an arm or a racket handle shows half of it)."""
+
 SPLIT_MIN_SPEED_R_S = 25.0
 """A flight found only by telling a ball apart from what touches it must move at least this many
 radii per second (about 2.5 m/s for any ball): a round thing at rest against a body (a head on a
@@ -421,7 +425,8 @@ class BallTracker:
             ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
             v = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, (cx, cy), v, (max(self.r_range[0], 0.7 * r), min(self.r_range[1], 1.4 * r)))
-            if fit is not None and fit.score >= self.min_score and _surrounded(xc, yc, fit) <= MAX_SURROUNDED:
+            if (fit is not None and fit.score >= self.min_score and fit.coverage >= SPLIT_MIN_COVERAGE
+                    and _surrounded(xc, yc, fit) <= MAX_SURROUNDED):
                 found.append((fit, v, (ts, xs, ys)))
         # a circle inside another (a seam, the bright half of the ball) is not the ball
         found = [f for f in found if not any(_inside(f[0], g[0]) for g in found if g is not f)]
