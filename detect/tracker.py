@@ -463,8 +463,11 @@ class BallTracker:
         sel = dx * dx + dy * dy < reach * reach
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
         fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
-        if fit is not None and _surrounded(dx + cx, dy + cy, fit) > MAX_SURROUNDED_TRACKING:
-            fit = None  # the ball is in clutter (a flickering light, a body behind it): no measurement
+        if fit is not None and (fit.r + np.hypot(fit.cx - cx, fit.cy - cy) > reach - 0.5
+                                or _surrounded(dx + cx, dy + cy, fit) > MAX_SURROUNDED_TRACKING):
+            # a rim at the edge of the selection, or events all around: the ball is in clutter (a
+            # flickering light, a body behind it) and the window is no measurement
+            fit = None
         if fit is None or fit.score < self.min_score:
             self._misses += 1
             if self._misses >= self.max_misses:
