@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import itertools
 import json
 import os
@@ -579,7 +580,15 @@ def _remove_store(path: Path) -> None:
     for name in _STORE_ENTRIES:
         entry = path / name
         if entry.is_dir():
-            shutil.rmtree(entry)
+            # writes of a failed creation may still land from Zarr's I/O thread: retry a little
+            for attempt in range(20):
+                try:
+                    shutil.rmtree(entry)
+                    break
+                except OSError as exc:
+                    if exc.errno != errno.ENOTEMPTY or attempt == 19:
+                        raise
+                    time.sleep(0.05)
         elif entry.exists():
             entry.unlink()
 
