@@ -580,13 +580,14 @@ def _remove_store(path: Path) -> None:
     for name in _STORE_ENTRIES:
         entry = path / name
         if entry.is_dir():
-            # writes of a failed creation may still land from Zarr's I/O thread: retry a little
+            # writes of a failed creation may still land (or be renamed) from Zarr's I/O thread:
+            # retry a little
             for attempt in range(20):
                 try:
                     shutil.rmtree(entry)
                     break
                 except OSError as exc:
-                    if exc.errno != errno.ENOTEMPTY or attempt == 19:
+                    if exc.errno not in (errno.ENOTEMPTY, errno.ENOENT) or attempt == 19:
                         raise
                     time.sleep(0.05)
         elif entry.exists():
