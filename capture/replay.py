@@ -10,11 +10,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from capture.cliargs import box, positive_int, run_command
 from capture.ingest import session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
+from capture.results import flight_table, format_flight_table
 from capture.session import open_session
 
 PROG = "python -m capture.replay"
@@ -70,10 +70,7 @@ def _run(args) -> None:
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "
           f"{len(result.spin['rps'])} spin estimates"
           + (f"; Rerun recording {result.rrd_path}" if result.rrd_path else ""))
-    if len(result.spin["rps"]):
-        ok = result.spin["confidence"] >= 0.5
-        if ok.any():
-            print(f"median spin {np.median(result.spin['rps'][ok]):.1f} rps over {ok.sum()} confident windows")
+    print(format_flight_table(flight_table(result.track, result.spin)))
 
 
 if __name__ == "__main__":

@@ -154,6 +154,9 @@ def print_summary(result: RecordResult, analysis: ReplayResult | None = None) ->
     if analysis is not None:
         print(f"  {len(analysis.track)} track rows, {len(analysis.spin['rps'])} spin estimates; "
               f"review: {analysis.rrd_path} (open with: rerun {analysis.rrd_path})")
+        from capture.results import flight_table, format_flight_table
+
+        print(format_flight_table(flight_table(analysis.track, analysis.spin)))
 
 
 def print_truth_comparison(analysis: ReplayResult, truth: dict) -> None:

@@ -1,0 +1,74 @@
+"""Per-flight results of an analysed session: ``python -m capture.report SESSION``.
+
+Prints one line per flight (:func:`capture.results.format_flight_table`) and, on request, writes
+the per-flight and per-window tables as CSV (units in the column names). With ``--ball`` (or
+``--ball-diameter``) and the session's calibration, distances and speeds in m/s and km/h too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from capture.cliargs import run_command
+from capture.events import Track
+from capture.results import BALL_DIAMETER_M, flight_table, format_flight_table, window_table, write_csv
+from capture.session import open_session
+
+PROG = "python -m capture.report"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description="Print (and export) the per-flight results of a session.")
+    ap.add_argument("session", help="session directory (analysed by capture.run or capture.replay)")
+    ball = ap.add_mutually_exclusive_group()
+    ball.add_argument("--ball", choices=sorted(BALL_DIAMETER_M), help="the ball, for distances and speeds")
+    ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
+    ap.add_argument("--csv", metavar="FILE", help="write the per-flight table as CSV")
+    ap.add_argument("--windows-csv", metavar="FILE", help="write the per-window table as CSV")
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_command(PROG, lambda: _run(args))
+
+
+def report(session_path, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
+    """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
+
+    Raises
+    ------
+    ValueError
+        The session holds no track (it was not analysed yet).
+    """
+    from capture.pipeline.replay import event_camera
+
+    s = open_session(session_path)
+    track = Track.from_columns(s.track())
+    if len(track) == 0 and "track" not in s.root:
+        raise ValueError(f"{session_path}: not analysed yet (no ball track); run: python -m capture.replay "
+                         f"{session_path}")
+    spin = s.spin()
+    camera = event_camera(s) if ball_diameter_m else None
+    flights = flight_table(track, spin, focal_px=camera.focal_px if camera is not None else None,
+                           ball_diameter_m=ball_diameter_m)
+    return flights, window_table(track, spin)
+
+
+def _run(args) -> None:
+    if args.ball_diameter is not None and not args.ball_diameter > 0:
+        raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
+    diameter = args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
+    flights, windows = report(args.session, ball_diameter_m=diameter)
+    print(format_flight_table(flights))
+    if diameter and not len(flights["flight"]) == 0 and not any(v == v for v in flights["speed_m_s"]):
+        print("note: no calibration of the event camera in the session: no distances or speeds")
+    if args.csv:
+        print(f"flights: {write_csv(flights, args.csv)}")
+    if args.windows_csv:
+        print(f"windows: {write_csv(windows, args.windows_csv)}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

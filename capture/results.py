@@ -1,0 +1,235 @@
+"""Results per flight, in the terms coaches and sports scientists use.
+
+:func:`window_table` gives every spin window its flight and its spin in the flight's own frame;
+:func:`flight_table` sums the windows of each flight up into one row: spin rate in rpm with an
+uncertainty, the axis, topspin / sidespin / gyro components, spin efficiency, the axis tilt as a
+clock face, the share of windows trusted, the image speed and, with the camera's intrinsics and
+the ball's size, the distance and the speed across the view. Flights without a trusted window are
+listed with NaN spin (that is the yield), never left out. :func:`format_flight_table` prints the
+table, :func:`write_csv` exports either table with the units in the column names.
+
+Flight frame (camera frame: X right, Y down, Z forward; see ``docs/conventions.md``):
+
+* ``f``: the direction of flight, the ball's image velocity (the camera sees the flight side-on);
+* ``u``: "up", the image's up direction (-Y) made perpendicular to ``f``; for a flight within
+  20 deg of vertical in the image, the direction towards the camera (-Z) instead;
+* spin vector ``w = axis * rps`` (right-hand rule), split into
+  ``topspin = w . (f x u)`` (> 0 topspin: the top of the ball turns forward; < 0 backspin),
+  ``sidespin = w . u`` (> 0: counter-clockwise seen from above) and ``gyro = w . f``
+  (rifle spin, > 0: counter-clockwise seen from behind);
+* efficiency ``sqrt(topspin^2 + sidespin^2) / |w|`` (the share of spin that bends the flight);
+* tilt, seen from behind the ball: 12:00 pure backspin, 3:00 pure sidespin (> 0), 6:00 pure
+  topspin, 9:00 pure sidespin (< 0).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from capture.events import Track
+
+TRUST = 0.5
+"""Least confidence of a trusted spin window."""
+
+BALL_DIAMETER_M = {"volleyball": 0.21, "soccer": 0.22, "basketball": 0.24, "tennis": 0.067,
+                   "tabletennis": 0.040, "baseball": 0.074, "handball": 0.19}
+"""Ball diameters by sport (m), for distances and speeds."""
+
+_VERTICAL_DEG = 20.0
+
+
+def flight_frame(velocity_px_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flight direction ``f``, up ``u`` and topspin axis ``f x u`` (unit vectors, camera frame) of
+    an image velocity ``(vx, vy)`` px/s (see the module docstring)."""
+    v = np.array([float(velocity_px_s[0]), float(velocity_px_s[1]), 0.0])
+    speed = np.linalg.norm(v)
+    f = v / speed if speed > 0 else np.array([1.0, 0.0, 0.0])
+    up = np.array([0.0, -1.0, 0.0])
+    u = up - (up @ f) * f
+    if np.linalg.norm(u) < np.sin(np.radians(_VERTICAL_DEG)):
+        u = np.array([0.0, 0.0, -1.0])
+    u = u / np.linalg.norm(u)
+    return f, u, np.cross(f, u)
+
+
+def spin_components(w_rps: np.ndarray, velocity_px_s) -> tuple[float, float, float]:
+    """``(topspin, sidespin, gyro)`` in rev/s of spin vector ``w_rps`` (3,) for a flight with image
+    velocity ``velocity_px_s``."""
+    f, u, t = flight_frame(velocity_px_s)
+    return float(w_rps @ t), float(w_rps @ u), float(w_rps @ f)
+
+
+def tilt_clock(topspin: float, sidespin: float) -> str:
+    """The axis tilt seen from behind the ball as a clock time ``"h:mm"`` (12:00 backspin)."""
+    if not (np.isfinite(topspin) and np.isfinite(sidespin)) or (topspin == 0 and sidespin == 0):
+        return "-"
+    minutes = int(round(np.degrees(np.arctan2(sidespin, -topspin)) % 360.0 * 2.0)) % 720  # 0.5 deg/min
+    h, m = divmod(minutes, 60)
+    return f"{h or 12}:{m:02d}"
+
+
+def _flight_of(track: Track, t_us: np.ndarray) -> np.ndarray:
+    """Flight of each time: the flight whose rows span it, else of the nearest row (-1: no track)."""
+    out = np.full(len(t_us), -1, np.int32)
+    if len(track) == 0:
+        return out
+    best = np.full(len(t_us), np.inf)
+    for fl in track.flight_ids():
+        t = track.t_us[track.flight == fl]
+        d = np.maximum(t[0] - t_us, 0) + np.maximum(t_us - t[-1], 0)  # 0 inside the span
+        closer = d < best
+        out[closer], best[closer] = int(fl), d[closer]
+    return out
+
+
+def window_table(track: Track, spin: dict) -> dict[str, np.ndarray]:
+    """Per-window table: each spin window with its flight, rate in rpm and components.
+
+    Columns: ``flight``, ``t_start_s``, ``t_end_s``, ``rps``, ``rpm``, ``axis_x``, ``axis_y``,
+    ``axis_z``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``, ``tilt``,
+    ``confidence``, ``trusted``, ``rps_sigma_pct``, ``axis_sigma_deg``, ``image_speed_px_s``.
+    """
+    n = len(spin["rps"])
+    t0, t1 = np.asarray(spin["t_start_us"], np.int64), np.asarray(spin["t_end_us"], np.int64)
+    rps = np.asarray(spin["rps"], np.float64)
+    axis = np.asarray(spin["axis"], np.float64).reshape(n, 3)
+    vel = np.asarray(spin["velocity_px_s"], np.float64).reshape(n, 2)
+    comp = np.array([spin_components(axis[i] * rps[i], vel[i]) for i in range(n)]).reshape(n, 3)
+    total = np.linalg.norm(comp, axis=1)
+    eff = np.where(total > 0, np.hypot(comp[:, 0], comp[:, 1]) / np.where(total > 0, total, 1.0), np.nan)
+    conf = np.asarray(spin["confidence"], np.float64)
+    return {
+        "flight": _flight_of(track, (t0 + t1) // 2), "t_start_s": t0 * 1e-6, "t_end_s": t1 * 1e-6,
+        "rps": rps, "rpm": 60.0 * rps, "axis_x": axis[:, 0], "axis_y": axis[:, 1], "axis_z": axis[:, 2],
+        "topspin_rpm": 60.0 * comp[:, 0], "sidespin_rpm": 60.0 * comp[:, 1], "gyro_rpm": 60.0 * comp[:, 2],
+        "efficiency": eff, "tilt": np.array([tilt_clock(a, b) for a, b in comp[:, :2]], dtype=object),
+        "confidence": conf, "trusted": conf >= TRUST,
+        "rps_sigma_pct": np.asarray(spin["rps_sigma_pct"], np.float64),
+        "axis_sigma_deg": np.asarray(spin["axis_sigma_deg"], np.float64),
+        "image_speed_px_s": np.hypot(vel[:, 0], vel[:, 1]),
+    }
+
+
+def _spread_sigma(values: np.ndarray, window_sigmas: np.ndarray) -> float:
+    """Standard error of the median of ``values``: from their spread, and never below the median
+    of the windows' own sigmas over sqrt(n) (one window: its own sigma)."""
+    n = len(values)
+    own = float(np.nanmedian(window_sigmas)) if np.isfinite(window_sigmas).any() else np.nan
+    if n == 1:
+        return own
+    spread = 1.2533 * float(np.std(values, ddof=1)) / np.sqrt(n)
+    return float(np.nanmax([spread, own / np.sqrt(n)]))
+
+
+def flight_table(track: Track, spin: dict, *, focal_px: float | None = None,
+                 ball_diameter_m: float | None = None) -> dict[str, np.ndarray]:
+    """One row per flight of ``track`` from the spin windows of ``spin`` (:data:`SPIN_COLUMNS`).
+
+    Spin is the median of the flight's trusted windows (confidence >= :data:`TRUST`), its sigma
+    the standard error from their spread (at least the windows' own sigma over sqrt(n)); the axis
+    is their mean, the components are those of the mean spin vector in the flight frame of the
+    flight's median image velocity. ``focal_px`` (the event camera's) and ``ball_diameter_m``
+    give the distance (m, from the apparent radius) and the speed across the view (m/s, km/h; the
+    speed along the line of sight is not measured).
+
+    Columns: ``flight``, ``t_start_s``, ``t_end_s``, ``duration_ms``, ``n_windows``, ``n_trusted``,
+    ``trusted_share``, ``rpm``, ``rpm_sigma``, ``rps``, ``axis_x``, ``axis_y``, ``axis_z``,
+    ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``, ``tilt``,
+    ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``speed_m_s``, ``speed_km_h``.
+    """
+    win = window_table(track, spin)
+    rows = []
+    for fl in track.flight_ids():
+        sel = track.flight == fl
+        t = track.t_us[sel]
+        vx, vy, r = np.median(track.vx[sel]), np.median(track.vy[sel]), float(np.median(track.r[sel]))
+        mine = win["flight"] == fl
+        ok = mine & win["trusted"]
+        row = {"flight": int(fl), "t_start_s": t[0] * 1e-6, "t_end_s": t[-1] * 1e-6,
+               "duration_ms": (t[-1] - t[0]) * 1e-3, "n_windows": int(mine.sum()), "n_trusted": int(ok.sum()),
+               "trusted_share": float(ok.sum() / mine.sum()) if mine.any() else 0.0,
+               "image_speed_px_s": float(np.hypot(vx, vy)), "radius_px": r}
+        nan = float("nan")
+        row.update(rpm=nan, rpm_sigma=nan, rps=nan, axis_x=nan, axis_y=nan, axis_z=nan, axis_sigma_deg=nan,
+                   topspin_rpm=nan, sidespin_rpm=nan, gyro_rpm=nan, efficiency=nan, tilt="-")
+        if ok.any():
+            rps = win["rps"][ok]
+            axes = np.column_stack([win["axis_x"][ok], win["axis_y"][ok], win["axis_z"][ok]])
+            mean_axis = axes.mean(axis=0)
+            mean_axis /= np.linalg.norm(mean_axis)
+            ang = np.degrees(np.arccos(np.clip(axes @ mean_axis, -1.0, 1.0)))
+            rate = float(np.median(rps))
+            top, side, gyro = spin_components(mean_axis * rate, (vx, vy))
+            row.update(rps=rate, rpm=60.0 * rate,
+                       rpm_sigma=60.0 * _spread_sigma(rps, win["rps_sigma_pct"][ok] / 100.0 * rps),
+                       axis_x=float(mean_axis[0]), axis_y=float(mean_axis[1]), axis_z=float(mean_axis[2]),
+                       axis_sigma_deg=_spread_sigma(ang, win["axis_sigma_deg"][ok]) if len(ang) > 1
+                       else float(win["axis_sigma_deg"][ok][0]),
+                       topspin_rpm=60.0 * top, sidespin_rpm=60.0 * side, gyro_rpm=60.0 * gyro,
+                       efficiency=float(np.hypot(top, side) / rate) if rate > 0 else nan,
+                       tilt=tilt_clock(top, side))
+        dist = speed = nan
+        if focal_px and ball_diameter_m and r > 0:
+            dist = focal_px * 0.5 * ball_diameter_m / r
+            speed = row["image_speed_px_s"] * dist / focal_px
+        row.update(distance_m=dist, speed_m_s=speed, speed_km_h=3.6 * speed)
+        rows.append(row)
+    names = ["flight", "t_start_s", "t_end_s", "duration_ms", "n_windows", "n_trusted", "trusted_share", "rpm",
+             "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm", "sidespin_rpm",
+             "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m", "speed_m_s",
+             "speed_km_h"]
+    return {k: np.array([row[k] for row in rows], dtype=object if k == "tilt" else None) for k in names}
+
+
+def format_flight_table(table: dict) -> str:
+    """The flight table as aligned text, one line per flight, with a yield line."""
+    n = len(table["flight"])
+    if n == 0:
+        return "no flight found"
+    speed = np.isfinite(table["speed_m_s"]).any()
+    head = (f"{'flight':>6} {'start s':>8} {'ms':>6} {'trusted':>8} {'rpm':>13} {'topspin':>8} {'sidespin':>8} "
+            f"{'gyro':>7} {'eff':>5} {'tilt':>6} {'px/s':>7}" + (f" {'m':>5} {'km/h':>6}" if speed else ""))
+    lines = [head]
+    for i in range(n):
+        trusted = f"{table['n_trusted'][i]}/{table['n_windows'][i]}"
+        if np.isfinite(table["rpm"][i]):
+            spin = (f"{table['rpm'][i]:>6.0f} ± {table['rpm_sigma'][i]:<4.0f} {table['topspin_rpm'][i]:>8.0f} "
+                    f"{table['sidespin_rpm'][i]:>8.0f} {table['gyro_rpm'][i]:>7.0f} "
+                    f"{100 * table['efficiency'][i]:>4.0f}% {table['tilt'][i]:>6}")
+        else:
+            spin = f"{'no trusted estimate':>51}"
+        line = (f"{table['flight'][i]:>6} {table['t_start_s'][i]:>8.3f} {table['duration_ms'][i]:>6.0f} {trusted:>8} "
+                f"{spin} {table['image_speed_px_s'][i]:>7.0f}")
+        if speed:
+            line += f" {table['distance_m'][i]:>5.1f} {table['speed_km_h'][i]:>6.1f}"
+        lines.append(line)
+    ok = int(np.isfinite(np.asarray(table["rpm"], float)).sum())
+    lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
+                 "tilt seen from behind, 12:00 backspin)")
+    return "\n".join(lines)
+
+
+def write_csv(table: dict, path) -> Path:
+    """Write a table (columns of equal length) as CSV with a header row; returns the path."""
+    path = Path(path)
+    names = list(table)
+    n = len(table[names[0]]) if names else 0
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(names)
+        for i in range(n):
+            w.writerow([_cell(table[k][i]) for k in names])
+    return path
+
+
+def _cell(v):
+    if isinstance(v, (bool, np.bool_)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return "" if not np.isfinite(v) else repr(float(v))
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    return v

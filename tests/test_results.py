@@ -1,0 +1,149 @@
+"""Per-flight results: spin in the flight's frame, uncertainty, yield, speed, CSV, the report CLI."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import sim
+from capture.events import SPIN_COLUMNS, Track, empty_table
+from capture.report import main as report_main
+from capture.results import flight_table, format_flight_table, tilt_clock, window_table, write_csv
+from capture.session import create_session
+from detect import spin_windows, track_ball
+
+
+def _track(velocity, t_us=(0, 100_000), flight=0, r=20.0):
+    t = np.arange(*t_us, 2000)
+    return Track(t_us=t, cx=100 + velocity[0] * t * 1e-6, cy=100 + velocity[1] * t * 1e-6, r=np.full(len(t), r),
+                 vx=np.full(len(t), velocity[0]), vy=np.full(len(t), velocity[1]), score=np.ones(len(t)),
+                 flight=np.full(len(t), flight))
+
+
+def _spin(axis, rps, velocity, n=8, t0=0, conf=1.0, rps_noise=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    s = empty_table(SPIN_COLUMNS, n)
+    s["t_start_us"] = t0 + 10_000 * np.arange(n)
+    s["t_end_us"] = s["t_start_us"] + 2000
+    s["axis"][:] = np.asarray(axis, float) / np.linalg.norm(axis)
+    s["rps"] = rps + rps_noise * rng.standard_normal(n)
+    s["omega_rad_s"] = 2 * np.pi * s["rps"]
+    s["velocity_px_s"][:] = velocity
+    s["confidence"][:] = conf
+    s["axis_sigma_deg"][:] = 1.0
+    s["rps_sigma_pct"][:] = 0.5
+    return s
+
+
+@pytest.mark.parametrize("velocity, axis, top, side, gyro, tilt", [
+    ((3000, 0), (0, 0, -1), 1, 0, 0, "6:00"),     # flying right, top of the ball forward: topspin
+    ((-3000, 0), (0, 0, -1), -1, 0, 0, "12:00"),  # the same axis flying left: backspin
+    ((-3000, 0), (0, 0, 1), 1, 0, 0, "6:00"),
+    ((3000, 0), (0, -1, 0), 0, 1, 0, "3:00"),     # axis up: sidespin, counter-clockwise from above
+    ((3000, 0), (0, 1, 0), 0, -1, 0, "9:00"),
+    ((3000, 0), (1, 0, 0), 0, 0, 1, None),        # axis along the flight: rifle spin
+    ((3000, -3000), (0, 0, -1), 1, 0, 0, "6:00"),  # rising at 45 deg: still topspin
+    ((0, -3000), (1, 0, 0), 1, 0, 0, "6:00"),     # straight up: "up" is towards the camera
+    ((0, 3000), (1, 0, 0), -1, 0, 0, "12:00"),    # straight down, same axis: backspin
+])
+def test_spin_components_in_the_flight_frame(velocity, axis, top, side, gyro, tilt):
+    rps = 25.0
+    t = flight_table(_track(velocity), _spin(axis, rps, velocity))
+    assert t["rpm"][0] == pytest.approx(60 * rps)
+    assert t["topspin_rpm"][0] == pytest.approx(60 * rps * top, abs=1e-6)
+    assert t["sidespin_rpm"][0] == pytest.approx(60 * rps * side, abs=1e-6)
+    assert t["gyro_rpm"][0] == pytest.approx(60 * rps * gyro, abs=1e-6)
+    assert t["efficiency"][0] == pytest.approx(1.0 - abs(gyro), abs=1e-6)
+    if tilt:
+        assert t["tilt"][0] == tilt
+
+
+def test_tilt_clock_turns_with_the_axis():
+    assert tilt_clock(-1.0, 0.0) == "12:00" and tilt_clock(1.0, 0.0) == "6:00"
+    assert tilt_clock(-1.0, 1.0) == "1:30" and tilt_clock(0.0, 0.0) == "-"
+
+
+def test_uncertainty_from_the_spread_and_windows_never_overconfident():
+    v = (3000, 0)
+    noisy = flight_table(_track(v), _spin((0, 0, -1), 30.0, v, n=400, rps_noise=1.0))
+    # standard error of the median of 400 windows with 1 rps spread: 1.2533 / 20 rps
+    assert noisy["rpm_sigma"][0] == pytest.approx(60 * 1.2533 / 20, rel=0.15)
+    one = flight_table(_track(v), _spin((0, 0, -1), 30.0, v, n=1))
+    assert one["rpm_sigma"][0] == pytest.approx(60 * 0.005 * 30.0)  # its own sigma (0.5 %)
+    same = flight_table(_track(v), _spin((0, 0, -1), 30.0, v, n=4))
+    assert same["rpm_sigma"][0] == pytest.approx(60 * 0.005 * 30.0 / 2)  # no spread: the windows' own / sqrt(n)
+
+
+def test_flights_without_a_trusted_window_are_listed_as_such():
+    v = (3000, 0)
+    track = Track.concat([_track(v), _track(v, (200_000, 300_000), flight=1)])
+    spin = {k: np.concatenate([a[k], b[k]]) for k, a, b in
+            ((k, _spin((0, 0, -1), 30.0, v), _spin((0, 0, -1), 30.0, v, t0=200_000, conf=0.2)) for k in SPIN_COLUMNS)}
+    t = flight_table(track, spin)
+    assert list(t["flight"]) == [0, 1] and list(t["n_trusted"]) == [8, 0] and list(t["n_windows"]) == [8, 8]
+    assert np.isfinite(t["rpm"][0]) and np.isnan(t["rpm"][1])
+    text = format_flight_table(t)
+    assert "no trusted estimate" in text and "yield: 1 of 2 flight(s)" in text
+    w = window_table(track, spin)
+    assert list(np.unique(w["flight"])) == [0, 1] and w["trusted"].sum() == 8
+
+
+def test_distance_and_speed_from_the_ball_size():
+    v = (1000, 0)
+    t = flight_table(_track(v, r=21.0), _spin((0, 0, -1), 30.0, v), focal_px=1000.0, ball_diameter_m=0.21)
+    assert t["distance_m"][0] == pytest.approx(5.0)      # 1000 px * 0.105 m / 21 px
+    assert t["speed_m_s"][0] == pytest.approx(5.0)       # 1000 px/s at 5 m with f = 1000 px
+    assert t["speed_km_h"][0] == pytest.approx(18.0)
+    assert "km/h" in format_flight_table(t)
+    assert np.isnan(flight_table(_track(v), _spin((0, 0, -1), 30.0, v))["speed_m_s"][0])
+
+
+def test_csv_reads_back_with_pandas_and_keeps_units_in_the_names(tmp_path):
+    v = (3000, 0)
+    t = flight_table(_track(v), _spin((0, 0, -1), 30.0, v))
+    df = pd.read_csv(write_csv(t, tmp_path / "flights.csv"))
+    assert {"rpm", "rpm_sigma", "topspin_rpm", "duration_ms", "t_start_s", "image_speed_px_s", "speed_km_h"} <= set(df)
+    assert df["rpm"][0] == pytest.approx(1800.0) and df["tilt"][0] == "6:00" and np.isnan(df["speed_m_s"][0])
+    w = pd.read_csv(write_csv(window_table(_track(v), _spin((0, 0, -1), 30.0, v)), tmp_path / "w.csv"))
+    assert len(w) == 8 and w["trusted"].dtype == np.int64 and (w["rpm"] == 1800.0).all()
+
+
+@pytest.mark.parametrize("direction, rps", [(1, 20.0), (-1, -20.0)])
+def test_simulated_flights_give_their_true_spin_in_coach_terms(direction, rps):
+    # topspin flying right (axis -Z); flying left the same axis is backspin
+    rec = sim.flight(texture="volleyball", rps=20.0, axis=(0, 0, -1), radius_px=30.0, width=480, height=320,
+                     duration_s=0.06, start_px=(240 - direction * 150.0, 160.0),
+                     velocity_px_s=(direction * 5000.0, 0.0), gravity_px_s2=0.0, distractors=(), noise_rate_hz=0.5,
+                     hot_pixels=5, seed=3)
+    track = track_ball(rec.events, width=480, height=320)
+    from spin import estimate_windows
+    from capture.events import spin_table
+
+    spin = spin_table(estimate_windows(spin_windows(rec.events, track, window_us=4000, min_events=3000)))
+    t = flight_table(track, spin)
+    assert len(t["flight"]) == 1 and t["n_trusted"][0] >= 3
+    assert t["rpm"][0] == pytest.approx(1200.0, rel=0.03)
+    assert np.sign(t["topspin_rpm"][0]) == np.sign(rps) and t["efficiency"][0] > 0.95
+    h, m = map(int, t["tilt"][0].split(":"))
+    deg = ((h % 12) * 60 + m) * 0.5  # 12:00 = 0 deg (backspin), 6:00 = 180 deg (topspin)
+    want = 180.0 if rps > 0 else 0.0
+    assert abs((deg - want + 180.0) % 360.0 - 180.0) < 10.0
+
+
+def test_report_cli_prints_the_table_and_refuses_an_unanalysed_session(tmp_path, capsys):
+    path = tmp_path / "s"
+    with create_session(path, width=480, height=320):
+        pass
+    assert report_main([str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not analysed yet" in err[0] and "capture.replay" in err[0]
+    v = (3000, 0)
+    from capture.session import update_session
+
+    with update_session(path) as w:
+        w.write_track(_track(v))
+        w.write_spin(_spin((0, 0, -1), 30.0, v))
+    assert report_main([str(path), "--csv", str(tmp_path / "f.csv"), "--ball", "volleyball"]) == 0
+    out = capsys.readouterr().out
+    assert "1800" in out and "6:00" in out and "yield: 1 of 1" in out and "no calibration" in out
+    assert pd.read_csv(tmp_path / "f.csv")["n_trusted"][0] == 8
+    assert report_main([str(path), "--ball-diameter", "-1"]) == 1
