@@ -1,7 +1,7 @@
 """Per-flight results of an analysed session: ``python -m capture.report SESSION``.
 
 Prints one line per flight (:func:`capture.results.format_flight_table`) and, on request, writes
-the per-flight and per-window tables as CSV (units in the column names). With ``--ball`` (or
+the per-flight and per-window tables as CSV or Parquet (units in the column names). With ``--ball`` (or
 ``--ball-diameter``) and the session's calibration, distances and speeds in m/s and km/h too.
 """
 
@@ -12,7 +12,8 @@ import sys
 
 from capture.cliargs import run_command
 from capture.events import Track
-from capture.results import BALL_DIAMETER_M, flight_table, format_flight_table, window_table, write_csv
+from capture.results import (BALL_DIAMETER_M, flight_table, format_flight_table, window_table, write_csv,
+                             write_parquet)
 from capture.session import open_session
 
 PROG = "python -m capture.report"
@@ -26,6 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
     ap.add_argument("--csv", metavar="FILE", help="write the per-flight table as CSV")
     ap.add_argument("--windows-csv", metavar="FILE", help="write the per-window table as CSV")
+    ap.add_argument("--parquet", metavar="FILE", help="write the per-flight table as Parquet")
+    ap.add_argument("--windows-parquet", metavar="FILE", help="write the per-window table as Parquet")
     return ap
 
 
@@ -68,6 +71,10 @@ def _run(args) -> None:
         print(f"flights: {write_csv(flights, args.csv)}")
     if args.windows_csv:
         print(f"windows: {write_csv(windows, args.windows_csv)}")
+    if args.parquet:
+        print(f"flights: {write_parquet(flights, args.parquet)}")
+    if args.windows_parquet:
+        print(f"windows: {write_parquet(windows, args.windows_parquet)}")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@ uncertainty, the axis, topspin / sidespin / gyro components, spin efficiency, th
 clock face, the share of windows trusted, the image speed and, with the camera's intrinsics and
 the ball's size, the distance and the speed across the view. Flights without a trusted window are
 listed with NaN spin (that is the yield), never left out. :func:`format_flight_table` prints the
-table, :func:`write_csv` exports either table with the units in the column names.
+table, :func:`write_csv` and :func:`write_parquet` export either table with the units in the column
+names.
 
 Flight frame (camera frame: X right, Y down, Z forward; see ``docs/conventions.md``):
 
@@ -222,6 +223,17 @@ def write_csv(table: dict, path) -> Path:
         w.writerow(names)
         for i in range(n):
             w.writerow([_cell(table[k][i]) for k in names])
+    return path
+
+
+def write_parquet(table: dict, path) -> Path:
+    """Write a table (columns of equal length) as Parquet (pyarrow); returns the path."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    cols = {k: (np.asarray(v, dtype=str) if np.asarray(v).dtype == object else np.asarray(v)) for k, v in table.items()}
+    pq.write_table(pa.table(cols), path)
     return path
 
 

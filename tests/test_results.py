@@ -7,7 +7,7 @@ import pytest
 import sim
 from capture.events import SPIN_COLUMNS, Track, empty_table
 from capture.report import main as report_main
-from capture.results import flight_table, format_flight_table, tilt_clock, window_table, write_csv
+from capture.results import flight_table, format_flight_table, tilt_clock, window_table, write_csv, write_parquet
 from capture.session import create_session
 from detect import spin_windows, track_ball
 
@@ -107,6 +107,17 @@ def test_csv_reads_back_with_pandas_and_keeps_units_in_the_names(tmp_path):
     assert len(w) == 8 and w["trusted"].dtype == np.int64 and (w["rpm"] == 1800.0).all()
 
 
+def test_parquet_reads_back_with_pandas_with_the_same_values(tmp_path):
+    v = (3000, 0)
+    t = flight_table(_track(v), _spin((0, 0, -1), 30.0, v, rps_noise=0.3))
+    df = pd.read_parquet(write_parquet(t, tmp_path / "flights.parquet"))
+    assert list(df.columns) == list(t) and df["tilt"][0] == t["tilt"][0]
+    assert df["rpm"][0] == t["rpm"][0] and df["n_trusted"].dtype == np.int64 and np.isnan(df["speed_km_h"][0])
+    w = window_table(_track(v), _spin((0, 0, -1), 30.0, v))
+    dw = pd.read_parquet(write_parquet(w, tmp_path / "w.parquet"))
+    assert len(dw) == 8 and dw["trusted"].dtype == bool and np.allclose(dw["rpm"], w["rpm"])
+
+
 @pytest.mark.parametrize("direction, rps", [(1, 20.0), (-1, -20.0)])
 def test_simulated_flights_give_their_true_spin_in_coach_terms(direction, rps):
     # topspin flying right (axis -Z); flying left the same axis is backspin
@@ -142,8 +153,10 @@ def test_report_cli_prints_the_table_and_refuses_an_unanalysed_session(tmp_path,
     with update_session(path) as w:
         w.write_track(_track(v))
         w.write_spin(_spin((0, 0, -1), 30.0, v))
-    assert report_main([str(path), "--csv", str(tmp_path / "f.csv"), "--ball", "volleyball"]) == 0
+    assert report_main([str(path), "--csv", str(tmp_path / "f.csv"), "--ball", "volleyball",
+                        "--windows-parquet", str(tmp_path / "w.parquet")]) == 0
     out = capsys.readouterr().out
     assert "1800" in out and "6:00" in out and "yield: 1 of 1" in out and "no calibration" in out
     assert pd.read_csv(tmp_path / "f.csv")["n_trusted"][0] == 8
+    assert len(pd.read_parquet(tmp_path / "w.parquet")) == 8
     assert report_main([str(path), "--ball-diameter", "-1"]) == 1
