@@ -1,7 +1,8 @@
 """Per-flight results of an analysed session: ``python -m capture.report SESSION``.
 
 Prints one line per flight (:func:`capture.results.format_flight_table`) and, on request, writes
-the per-flight and per-window tables as CSV or Parquet (units in the column names). With ``--ball`` (or
+the per-flight and per-window tables as CSV or Parquet (units in the column names) and a
+self-contained HTML report (:func:`capture.pipeline.html_report.write_html`). With ``--ball`` (or
 ``--ball-diameter``) and the session's calibration, distances and speeds in m/s and km/h too.
 """
 
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--windows-csv", metavar="FILE", help="write the per-window table as CSV")
     ap.add_argument("--parquet", metavar="FILE", help="write the per-flight table as Parquet")
     ap.add_argument("--windows-parquet", metavar="FILE", help="write the per-window table as Parquet")
+    ap.add_argument("--html", metavar="FILE", help="write a self-contained HTML report (table and plots)")
     return ap
 
 
@@ -75,6 +77,10 @@ def _run(args) -> None:
         print(f"flights: {write_parquet(flights, args.parquet)}")
     if args.windows_parquet:
         print(f"windows: {write_parquet(windows, args.windows_parquet)}")
+    if args.html:
+        from capture.pipeline.html_report import write_html
+
+        print(f"report: {write_html(args.session, args.html, ball_diameter_m=diameter)}")
 
 
 if __name__ == "__main__":

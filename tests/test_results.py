@@ -160,3 +160,33 @@ def test_report_cli_prints_the_table_and_refuses_an_unanalysed_session(tmp_path,
     assert pd.read_csv(tmp_path / "f.csv")["n_trusted"][0] == 8
     assert len(pd.read_parquet(tmp_path / "w.parquet")) == 8
     assert report_main([str(path), "--ball-diameter", "-1"]) == 1
+
+
+def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_path):
+    import base64
+    import re
+
+    from capture.pipeline.replay import ReplayOptions, replay
+
+    rec = sim.flight(texture="volleyball", rps=20.0, axis=(0, 0, -1), radius_px=30.0, width=480, height=320,
+                     duration_s=0.06, start_px=(90.0, 160.0), velocity_px_s=(5000.0, 0.0), gravity_px_s2=0.0,
+                     distractors=(), noise_rate_hz=0.5, hot_pixels=5, seed=3)
+    path = tmp_path / "s"
+    with create_session(path, width=480, height=320) as w:
+        w.append_events(rec.events)
+    replay(path, options=ReplayOptions(workers=1), progress=False)
+    out = tmp_path / "report.html"
+    assert report_main([str(path), "--html", str(out)]) == 0
+    doc = out.read_text()
+    assert doc.startswith("<!DOCTYPE html>") and "</html>" in doc
+    # nothing fetched from elsewhere: no scripts, no links, every image inline
+    assert "<script" not in doc and "http://" not in doc and "https://" not in doc
+    images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", doc)
+    assert len(images) == 3  # the track, the flight's spin, its ball events
+    assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
+    from capture.report import report
+
+    flights, _ = report(path)
+    assert flights["rpm"][0] == pytest.approx(1200.0, rel=0.03)
+    assert f"<td>{flights['rpm'][0]:.0f}</td>" in doc and f"<td>{flights['tilt'][0]}</td>" in doc
+    assert "Flight 0" in doc
