@@ -160,6 +160,22 @@ def test_one_recording_with_blueprint_and_timeline(written):
     assert temporal and all(c.timeline_names == [review.TIMELINE] for c in temporal)
 
 
+def test_flight_table_as_a_text_view_and_colour_blind_safe_polarities(written):
+    session, _, _, data = written
+    (text,) = [v for _, row in data["/results/flights"]["TextDocument:text"] for v in ([row] if isinstance(row, str) else row)]
+    from capture.results import flight_table, format_flight_table
+
+    s = open_session(session)
+    assert text == format_flight_table(flight_table(Track.from_columns(s.track()), s.spin()))
+    assert "yield:" in text
+    # sky blue and orange (Okabe-Ito): apart for red-green colour blindness, unlike green and red
+    on = data["/events/on"]["Points2D:colors"][0][1]
+    off = data["/events/off"]["Points2D:colors"][0][1]
+    rgba = lambda c: [(c >> s_) & 255 for s_ in (24, 16, 8)]  # noqa: E731
+    assert rgba(on[0]) == list(review.layout.ON_COLOR) == [86, 180, 233]
+    assert rgba(off[0]) == list(review.layout.OFF_COLOR) == [230, 159, 0]
+
+
 def test_events_sliced_split_by_polarity_and_decimated_by_stride(written):
     _, _, stats, data = written
     events = _events()

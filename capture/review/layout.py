@@ -6,7 +6,7 @@ Rerun *duration* so that the viewer shows seconds since the sensor's time zero.
 
 Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.review.LiveReview`)::
 
-    events/on, events/off        Points2D: events of one time slice (ON green, OFF red)
+    events/on, events/off        Points2D: events of one time slice (ON sky blue, OFF orange, on black)
     events/sensor                Boxes2D (static): the sensor outline
     events/ball                  Ellipses2D: ball circle from the track
     events/spin_axis             Arrows2D: spin axis projected on the image, at the ball centre
@@ -23,6 +23,7 @@ Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.re
     plots/event_rate/events_ev_s Scalars: event rate per slice (before decimation), ev/s
     plots/status/<name>          Scalars: live status numbers (drops, ...)
     log                          TextLog: notes (decimation, skipped batches, ...)
+    results/flights              TextDocument (static): the per-flight table (:mod:`capture.results`)
 
 2D entities use Rerun's image coordinates, where pixel ``(0, 0)`` covers
 ``[0, 1) x [0, 1)``: a pixel coordinate ``u`` (pixel centre at integer values,
@@ -67,10 +68,12 @@ PLOT_AXIS_SIGMA = "plots/uncertainty/axis_deg"
 PLOT_EVENT_RATE = "plots/event_rate/events_ev_s"
 PLOT_STATUS = "plots/status"
 TEXT_LOG = "log"
+RESULTS_FLIGHTS = "results/flights"
 
 # colours, RGB 0..255
-ON_COLOR = (60, 220, 90)
-OFF_COLOR = (235, 70, 60)
+ON_COLOR = (86, 180, 233)
+OFF_COLOR = (230, 159, 0)
+"""Polarity colours: Okabe-Ito sky blue and orange, told apart with any colour vision, on black."""
 BALL_COLOR = (255, 210, 0)
 AXIS_COLOR = (80, 160, 255)
 
@@ -143,7 +146,7 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
     """
     bounds = (rrb.VisualBounds2D(x_range=[0, width], y_range=[0, height])
               if width and height else None)
-    top = [rrb.Spatial2DView(origin="events", name="Events", visual_bounds=bounds)]
+    top = [rrb.Spatial2DView(origin="events", name="Events", visual_bounds=bounds, background=[0, 0, 0])]
     if frames:
         top.append(rrb.Spatial2DView(origin="frames", name="GoPro"))
     top.append(rrb.Spatial3DView(origin=BALL3D, name="Spin axis"))
@@ -156,6 +159,7 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
         rrb.TimeSeriesView(origin="plots", contents=rate_contents,
                            name="Event rate (ev/s)" + (" and status" if status else "")),
         rrb.TextLogView(origin=TEXT_LOG, name="Log"),
+        rrb.TextDocumentView(origin=RESULTS_FLIGHTS, name="Flights"),
     ]
     return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom), row_shares=[3, 2]),
                          rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)

@@ -20,7 +20,7 @@ from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AX
                                    EVENTS_BALL, EVENTS_OFF, EVENTS_ON, EVENTS_SENSOR, EVENTS_SPIN_AXIS,
                                    FRAMES_BALL, FRAMES_IMAGE, OFF_COLOR, ON_COLOR, PIXEL_OFFSET, PLOT_AZIMUTH,
                                    PLOT_AXIS_SIGMA, PLOT_CONFIDENCE, PLOT_ELEVATION, PLOT_EVENT_RATE, PLOT_RPS,
-                                   PLOT_RPS_SIGMA, PLOT_STATUS,
+                                   PLOT_RPS_SIGMA, PLOT_STATUS, RESULTS_FLIGHTS,
                                    TEXT_LOG, TIMELINE, axis_angles_deg, time_column)
 
 
@@ -281,6 +281,10 @@ class ReviewLogger:
             if value is not None:
                 self.rec.send_columns(f"{PLOT_STATUS}/{name}", indexes=[time_column([t_us])],
                                       columns=rr.Scalars.columns(scalars=[float(value)]))
+
+    def flights(self, text: str) -> None:
+        """The per-flight table (:func:`capture.results.format_flight_table`) as a text view."""
+        self.rec.log(RESULTS_FLIGHTS, rr.TextDocument(text, media_type=rr.MediaType.TEXT), static=True)
 
     def text(self, message: str, level: str = "INFO", t_us: int | None = None) -> None:
         """A note in the log, at ``t_us`` (µs; default: the latest event time seen)."""

@@ -13,6 +13,7 @@ from tqdm import tqdm
 from capture.events import Track
 from capture.review.layout import (DEFAULT_MAX_EVENTS_PER_SLICE, DEFAULT_SLICE_US, FRAMES_IMAGE, VIDEO_ASSET,
                                    blueprint, circle_mapping, session_recording_id, time_column)
+from capture.results import flight_table, format_flight_table
 from capture.review.logger import ReviewLogger, ReviewStats, check_rrd_path, open_recording
 from capture.session import Session, SessionError, open_session
 
@@ -82,6 +83,7 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
         track = Track.from_columns(session.track())
         lg.track(track)
         lg.spin(session.spin(), track)
+        lg.flights(format_flight_table(flight_table(track, session.spin())))
         mapping = event_to_frame or circle_mapping(session.attrs)
         if frames["video"] is not None:
             _log_video(lg, frames["video"], frames["t_us"], video_max_bytes=video_max_bytes,
