@@ -241,6 +241,15 @@ def test_spin_series_and_axis(written):
     vectors = [np.array(v[0]) for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:vectors"])]
     for vec, axis in zip(vectors, SPIN["axis"]):
         np.testing.assert_allclose(vec / np.linalg.norm(vec), axis, atol=1e-6)
+    # rpm split by trust: windows 0 and 1 trusted (confidence >= 0.5), window 2 not
+    trusted = _temporal(data["/plots/rpm/trusted"]["Scalars:scalars"])
+    untrusted = _temporal(data["/plots/rpm/not_trusted"]["Scalars:scalars"])
+    assert [(t, v[0]) for t, v in trusted] == [(int(mid[0]), 600.0), (int(mid[1]), 1200.0)]
+    assert [(t, v[0]) for t, v in untrusted] == [(int(mid[2]), 60 * 30.5)]
+    # components in the flight's frame (no image velocity: the flight is taken along +X, up -Y)
+    np.testing.assert_allclose(series("/plots/spin/gyro_rpm"), [600.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(series("/plots/spin/sidespin_rpm"), [0.0, 1200.0, -0.6 * 60 * 30.5], atol=1e-9)
+    np.testing.assert_allclose(series("/plots/spin/topspin_rpm"), [0.0, 0.0, -0.8 * 60 * 30.5], atol=1e-9)
     labels = [v[0] for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:labels"])]
     assert labels == ["10.0 rps ±0.4 %", "20.0 rps ±2.0 %", "30.5 rps ±6.0 %"]
 

@@ -15,6 +15,10 @@ Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.re
     video/asset                  AssetVideo (static): the session's MP4, when it has one
     ball3d/sphere, ball3d/axis   Ellipsoids3D (static) and Arrows3D: unit ball and spin axis
     plots/rps                    Scalars: spin rate, rev/s
+    plots/rpm/trusted            Scalars: spin rate of the trusted windows (confidence >= 0.5), rpm
+    plots/rpm/not_trusted        Scalars: spin rate of the other windows, rpm (drawn grey)
+    plots/spin/<part>_rpm        Scalars: topspin, sidespin, gyro in the flight's frame, rpm
+                                 (:mod:`capture.results`; they do not wrap as angles do)
     plots/axis/azimuth_deg       Scalars: axis azimuth, see :func:`axis_angles_deg`
     plots/axis/elevation_deg     Scalars: axis elevation
     plots/confidence             Scalars: spin confidence 0..1
@@ -60,6 +64,9 @@ BALL3D = "ball3d"
 BALL3D_SPHERE = "ball3d/sphere"
 BALL3D_AXIS = "ball3d/axis"
 PLOT_RPS = "plots/rps"
+PLOT_RPM_TRUSTED = "plots/rpm/trusted"
+PLOT_RPM_UNTRUSTED = "plots/rpm/not_trusted"
+PLOT_SPIN_PARTS = "plots/spin"
 PLOT_AZIMUTH = "plots/axis/azimuth_deg"
 PLOT_ELEVATION = "plots/axis/elevation_deg"
 PLOT_CONFIDENCE = "plots/confidence"
@@ -152,8 +159,8 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
     top.append(rrb.Spatial3DView(origin=BALL3D, name="Spin axis"))
     rate_contents = ["+ /plots/event_rate/**"] + (["+ /plots/status/**"] if status else [])
     bottom = [
-        rrb.TimeSeriesView(origin=PLOT_RPS, name="Spin rate (rps)"),
-        rrb.TimeSeriesView(origin="plots/axis", name="Axis angles (deg)"),
+        rrb.TimeSeriesView(origin="plots/rpm", name="Spin rate (rpm; grey: not trusted)"),
+        rrb.TimeSeriesView(origin=PLOT_SPIN_PARTS, name="Topspin, sidespin, gyro (rpm)"),
         rrb.TimeSeriesView(origin=PLOT_CONFIDENCE, name="Confidence"),
         rrb.TimeSeriesView(origin="plots/uncertainty", name="Uncertainty (1 sigma: %, deg)"),
         rrb.TimeSeriesView(origin="plots", contents=rate_contents,

@@ -16,11 +16,13 @@ import numpy as np
 import rerun as rr
 
 from capture.events import EVENT_DTYPE, Track, concatenate, spin_table
+from capture.results import TRUST, spin_components
 from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AXIS, BALL3D_SPHERE, BALL_COLOR,
                                    EVENTS_BALL, EVENTS_OFF, EVENTS_ON, EVENTS_SENSOR, EVENTS_SPIN_AXIS,
                                    FRAMES_BALL, FRAMES_IMAGE, OFF_COLOR, ON_COLOR, PIXEL_OFFSET, PLOT_AZIMUTH,
                                    PLOT_AXIS_SIGMA, PLOT_CONFIDENCE, PLOT_ELEVATION, PLOT_EVENT_RATE, PLOT_RPS,
-                                   PLOT_RPS_SIGMA, PLOT_STATUS, RESULTS_FLIGHTS,
+                                   PLOT_RPM_TRUSTED, PLOT_RPM_UNTRUSTED, PLOT_RPS_SIGMA, PLOT_SPIN_PARTS,
+                                   PLOT_STATUS, RESULTS_FLIGHTS,
                                    TEXT_LOG, TIMELINE, axis_angles_deg, time_column)
 
 
@@ -106,6 +108,8 @@ class ReviewLogger:
         for path in (EVENTS_BALL, FRAMES_BALL):
             rec.log(path, rr.Ellipses2D.from_fields(colors=[BALL_COLOR], line_radii=[1.0]), static=True)
         rec.log(EVENTS_SPIN_AXIS, rr.Arrows2D.from_fields(colors=[AXIS_COLOR]), static=True)
+        rec.log(PLOT_RPM_UNTRUSTED, rr.SeriesPoints(colors=[(150, 150, 150)], names=["not trusted"]), static=True)
+        rec.log(PLOT_RPM_TRUSTED, rr.SeriesPoints(colors=[(0, 114, 178)], names=["trusted"]), static=True)
         rec.log(BALL3D, rr.ViewCoordinates.RDF, static=True)
         rec.log(BALL3D_SPHERE, rr.Ellipsoids3D(half_sizes=[[1.0, 1.0, 1.0]], colors=[BALL_COLOR],
                                                fill_mode="majorwireframe"), static=True)
@@ -245,6 +249,15 @@ class ReviewLogger:
                              (PLOT_RPS_SIGMA, cols["rps_sigma_pct"].astype(np.float64)),
                              (PLOT_AXIS_SIGMA, cols["axis_sigma_deg"].astype(np.float64))):
             self.rec.send_columns(path, indexes=index, columns=rr.Scalars.columns(scalars=values))
+        trusted = cols["confidence"] >= TRUST
+        for path, sel in ((PLOT_RPM_TRUSTED, trusted), (PLOT_RPM_UNTRUSTED, ~trusted)):
+            if sel.any():
+                self.rec.send_columns(path, indexes=[time_column(t[sel])],
+                                      columns=rr.Scalars.columns(scalars=60.0 * rps[sel]))
+        parts = np.array([spin_components(a * w, v) for a, w, v in zip(axis, rps, cols["velocity_px_s"])])
+        for k, name in enumerate(("topspin", "sidespin", "gyro")):
+            self.rec.send_columns(f"{PLOT_SPIN_PARTS}/{name}_rpm", indexes=index,
+                                  columns=rr.Scalars.columns(scalars=60.0 * parts[:, k]))
         labels = [f"{v:.1f} rps ±{s:.1f} %" if np.isfinite(s) else f"{v:.1f} rps"
                   for v, s in zip(rps, cols["rps_sigma_pct"])]
         self.rec.send_columns(BALL3D_AXIS, indexes=index,
