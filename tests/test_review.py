@@ -166,7 +166,7 @@ def test_flight_table_as_a_text_view_and_colour_blind_safe_polarities(written):
     from capture.results import flight_table, format_flight_table
 
     s = open_session(session)
-    assert text == format_flight_table(flight_table(Track.from_columns(s.track()), s.spin()))
+    assert text == "```\n" + format_flight_table(flight_table(Track.from_columns(s.track()), s.spin())) + "\n```"
     assert "yield:" in text
     # sky blue and orange (Okabe-Ito): apart for red-green colour blindness, unlike green and red
     on = data["/events/on"]["Points2D:colors"][0][1]

@@ -165,8 +165,8 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
         rrb.TimeSeriesView(origin="plots/uncertainty", name="Uncertainty (1 sigma: %, deg)"),
         rrb.TimeSeriesView(origin="plots", contents=rate_contents,
                            name="Event rate (ev/s)" + (" and status" if status else "")),
-        rrb.TextLogView(origin=TEXT_LOG, name="Log"),
-        rrb.TextDocumentView(origin=RESULTS_FLIGHTS, name="Flights"),
     ]
-    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom), row_shares=[3, 2]),
+    texts = [rrb.TextDocumentView(origin=RESULTS_FLIGHTS, name="Flights"), rrb.TextLogView(origin=TEXT_LOG, name="Log")]
+    return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom),
+                                      rrb.Horizontal(*texts, column_shares=[3, 1]), row_shares=[6, 4, 2]),
                          rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)

@@ -296,8 +296,10 @@ class ReviewLogger:
                                       columns=rr.Scalars.columns(scalars=[float(value)]))
 
     def flights(self, text: str) -> None:
-        """The per-flight table (:func:`capture.results.format_flight_table`) as a text view."""
-        self.rec.log(RESULTS_FLIGHTS, rr.TextDocument(text, media_type=rr.MediaType.TEXT), static=True)
+        """The per-flight table (:func:`capture.results.format_flight_table`) as a text view (a Markdown
+        code block, so that its columns line up)."""
+        self.rec.log(RESULTS_FLIGHTS, rr.TextDocument(f"```\n{text}\n```", media_type=rr.MediaType.MARKDOWN),
+                     static=True)
 
     def text(self, message: str, level: str = "INFO", t_us: int | None = None) -> None:
         """A note in the log, at ``t_us`` (µs; default: the latest event time seen)."""
