@@ -139,7 +139,7 @@ def session_recording_id(session: Session) -> str:
 
 
 def blueprint(*, frames: bool = True, width: int | None = None, height: int | None = None,
-              status: bool = False) -> rrb.Blueprint:
+              status: bool = False, follow: bool = True) -> rrb.Blueprint:
     """The review layout: events, GoPro frames, 3D spin axis on top; time series below.
 
     Parameters
@@ -150,6 +150,9 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
         Sensor size in pixels, to frame the events view.
     status : bool
         Include live status numbers (drops, ...) with the event rate.
+    follow : bool
+        The viewer follows the newest data (live); else it opens paused at the start of the
+        recording (offline: not at its end, after the ball has left).
     """
     bounds = (rrb.VisualBounds2D(x_range=[0, width], y_range=[0, height])
               if width and height else None)
@@ -169,4 +172,5 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
     texts = [rrb.TextDocumentView(origin=RESULTS_FLIGHTS, name="Flights"), rrb.TextLogView(origin=TEXT_LOG, name="Log")]
     return rrb.Blueprint(rrb.Vertical(rrb.Horizontal(*top), rrb.Horizontal(*bottom),
                                       rrb.Horizontal(*texts, column_shares=[3, 1]), row_shares=[6, 4, 2]),
-                         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
+                         rrb.TimePanel(timeline=TIMELINE, play_state="following" if follow else "paused"),
+                         collapse_panels=False)

@@ -70,7 +70,7 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     rec = open_recording(session_recording_id(session))
     rec.save(rrd_path)
     try:
-        rec.send_blueprint(blueprint(frames=has_images, width=session.width, height=session.height))
+        rec.send_blueprint(blueprint(frames=has_images, width=session.width, height=session.height, follow=False))
         rec.send_recording_name(session.path.name)
         lg = ReviewLogger(rec, slice_us=slice_us, max_events_per_slice=max_events_per_slice,
                           width=session.width, height=session.height)
