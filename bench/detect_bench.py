@@ -61,7 +61,7 @@ def _cross(r, speed_mps, texture, w, h, rng, dur):
 
 
 def make_case(name: str, seed: int, quick: bool = False):
-    """``(recording, duration_s, extra balls' truth circles fn or None)`` of row ``name``."""
+    """``(recording, duration_s)`` of row ``name`` for ``seed``."""
     rng = np.random.default_rng(seed + 7919)
     dur = 0.025 if quick else 0.05
     common = dict(noise_rate_hz=1.0, hot_pixels=30, seed=seed)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+import numpy as np
+
 from capture.cliargs import run_command
 from capture.events import Track
 from capture.results import (BALL_DIAMETER_M, flight_table, format_flight_table, window_table, write_csv,
@@ -67,7 +69,7 @@ def _run(args) -> None:
     diameter = args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
     flights, windows = report(args.session, ball_diameter_m=diameter)
     print(format_flight_table(flights))
-    if diameter and not len(flights["flight"]) == 0 and not any(v == v for v in flights["speed_m_s"]):
+    if diameter and len(flights["flight"]) and np.isnan(flights["speed_m_s"].astype(float)).all():
         print("note: no calibration of the event camera in the session: no distances or speeds")
     if args.csv:
         print(f"flights: {write_csv(flights, args.csv)}")

@@ -30,6 +30,7 @@ from capture.cliargs import box, flicker_band, name_int, run_command
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
 from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
+from capture.results import flight_table, format_flight_table
 
 PROG = "python -m capture.run"
 
@@ -154,8 +155,6 @@ def print_summary(result: RecordResult, analysis: ReplayResult | None = None) ->
     if analysis is not None:
         print(f"  {len(analysis.track)} track rows, {len(analysis.spin['rps'])} spin estimates; "
               f"review: {analysis.rrd_path} (open with: rerun {analysis.rrd_path})")
-        from capture.results import flight_table, format_flight_table
-
         print(format_flight_table(flight_table(analysis.track, analysis.spin)))
 
 

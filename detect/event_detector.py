@@ -73,6 +73,17 @@ def _median(a: np.ndarray) -> float:
     return 0.5 * float(s[(n - 1) // 2] + s[n // 2])
 
 
+def _count_image(x: np.ndarray, y: np.ndarray, pad: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Event counts on a local pixel grid holding the rounded positions ``(x, y)`` with ``pad`` px of
+    margin: the image (float32, (h, w)), the flat image index of each event, and the sensor pixel
+    ``(x0, y0)`` of the image's pixel (0, 0)."""
+    xi, yi = np.rint(x).astype(np.int64), np.rint(y).astype(np.int64)
+    x0, y0 = int(xi.min()) - pad, int(yi.min()) - pad
+    w, h = int(xi.max()) - x0 + pad + 1, int(yi.max()) - y0 + pad + 1
+    idx = (yi - y0) * w + (xi - x0)
+    return np.bincount(idx, minlength=w * h).astype(np.float32).reshape(h, w), idx, (x0, y0)
+
+
 def density_filter(x: np.ndarray, y: np.ndarray, *, min_neighbours: int = 2) -> np.ndarray:
     """Mask of events with at least ``min_neighbours`` other events in their 3x3 pixel neighbourhood.
 
@@ -81,12 +92,7 @@ def density_filter(x: np.ndarray, y: np.ndarray, *, min_neighbours: int = 2) -> 
     """
     if len(x) == 0:
         return np.zeros(0, bool)
-    xi = np.rint(x).astype(np.int64)
-    yi = np.rint(y).astype(np.int64)
-    x0, y0 = xi.min() - 1, yi.min() - 1
-    w, h = int(xi.max() - x0 + 2), int(yi.max() - y0 + 2)
-    idx = (yi - y0) * w + (xi - x0)
-    img = np.bincount(idx, minlength=w * h).astype(np.float32).reshape(h, w)
+    img, idx, _ = _count_image(x, y, 1)
     nb = cv2.boxFilter(img, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
     return nb.reshape(-1)[idx] - 1.0 >= min_neighbours
 
@@ -217,11 +223,8 @@ def hough_circles(x: np.ndarray, y: np.ndarray, *, r_range: tuple[float, float],
     """
     if len(x) < 20:
         return []
-    xi, yi = np.rint(x).astype(np.int64), np.rint(y).astype(np.int64)
     pad = int(np.ceil(3 * blur_px)) + 2
-    x0, y0 = int(xi.min()) - pad, int(yi.min()) - pad
-    w, h = int(xi.max()) - x0 + pad + 1, int(yi.max()) - y0 + pad + 1
-    img = np.bincount((yi - y0) * w + (xi - x0), minlength=w * h).astype(np.float32).reshape(h, w)
+    img, _, (x0, y0) = _count_image(x, y, pad)
     img = cv2.GaussianBlur(img, (0, 0), blur_px)
     peak = float(img.max())
     if peak <= 0:

@@ -89,6 +89,12 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
     return float(np.mean(dens_ring >= 0.3 * dens_in))
 
 
+def _velocity(a, b) -> tuple[float, float]:
+    """Image velocity (px/s) from detection ``a`` to ``b``, each ``(t_us, CircleFit, ...)``."""
+    dt_s = max((b[0] - a[0]) * 1e-6, 1e-9)
+    return (b[1].cx - a[1].cx) / dt_s, (b[1].cy - a[1].cy) / dt_s
+
+
 def _inside(a: CircleFit, b: CircleFit) -> bool:
     """Whether circle ``a`` lies inside the larger circle ``b`` (to within a pixel)."""
     return a.r < b.r and np.hypot(a.cx - b.cx, a.cy - b.cy) + a.r <= b.r + 1.0
@@ -351,8 +357,8 @@ class BallTracker:
         start = s0 if self._acc_s0 is None else self._acc_s0
         self._acc.append((t, x, y))
         self._acc_n += len(t)
-        long_enough = s1 - start >= min(self.max_window_us, self.max_window_us if span_us is None else span_us)
-        if not long_enough and (need is None or self._acc_n < need):
+        longest = self.max_window_us if span_us is None else min(span_us, self.max_window_us)
+        if s1 - start < longest and (need is None or self._acc_n < need):
             self._acc_s0 = start
             return None
         pieces = self._acc
@@ -540,7 +546,7 @@ class BallTracker:
             if self._tentative and m - self._tentative[-1][0] > 2 * span:
                 self._tentative = []
             return
-        fit, v0, evs, split, box = best
+        fit, v0, evs, split, (box, coarse) = best
         if self._tentative:
             tm, tf, tv = self._tentative[-1][:3]
             dt_s = (m - tm) * 1e-6
@@ -550,28 +556,24 @@ class BallTracker:
             if not ok:
                 self._tentative = []
             elif len(self._tentative) >= 1:
-                v0 = ((fit.cx - self._tentative[0][1].cx) / ((m - self._tentative[0][0]) * 1e-6),
-                      (fit.cy - self._tentative[0][1].cy) / ((m - self._tentative[0][0]) * 1e-6))
+                v0 = _velocity(self._tentative[0], (m, fit))
         self._tentative.append((m, fit, v0, evs, split))
         if len(self._tentative) >= self.confirm_slices:
             if all(tent[4] for tent in self._tentative) and self._slow(fit):
                 # a round part of something bigger moving with it (a head on a body), not a ball
                 self._tentative = []
-                self._rejected.append((box[0], 0, box[1]))
+                self._rejected.append((box, 0, coarse))
                 return
             self._start_flight()
 
     def _slow(self, fit: CircleFit) -> bool:
         """Whether the tentative detections moved less than ``SPLIT_MIN_SPEED_R_S`` radii/s."""
-        (ta, fa), (tb, fb) = self._tentative[0][:2], self._tentative[-1][:2]
-        speed = np.hypot(fb.cx - fa.cx, fb.cy - fa.cy) / max((tb - ta) * 1e-6, 1e-9)
-        return bool(speed < SPLIT_MIN_SPEED_R_S * fit.r)
+        return bool(np.hypot(*_velocity(self._tentative[0], self._tentative[-1])) < SPLIT_MIN_SPEED_R_S * fit.r)
 
     def _start_flight(self) -> None:
         # refit the tentative detections with the velocity of their displacement (better
         # motion compensation than each slice's own centroid velocity)
-        (ta, fa), (tb, fb) = self._tentative[0][:2], self._tentative[-1][:2]
-        v = ((fb.cx - fa.cx) / ((tb - ta) * 1e-6), (fb.cy - fa.cy) / ((tb - ta) * 1e-6))
+        v = _velocity(self._tentative[0], self._tentative[-1])
         fits = []
         for tm, f, _, (ts, xs, ys), _ in self._tentative:
             refit = self._fit(ts, xs, ys, tm, (f.cx, f.cy), v, self.r_range)

@@ -321,8 +321,9 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
             try:
                 writer.flush()
             except OSError as exc:
-                reason = f"write error: {' '.join(str(exc).split())}"
-                messages.append(f"stopped on a write error ({' '.join(str(exc).split())})")
+                what = " ".join(str(exc).split())
+                reason = f"write error: {what}"
+                messages.append(f"stopped on a write error ({what})")
     recording = {"stop_reason": reason,
                  "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     if stats is not None:

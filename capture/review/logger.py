@@ -16,7 +16,7 @@ import numpy as np
 import rerun as rr
 
 from capture.events import EVENT_DTYPE, Track, concatenate, spin_table
-from capture.results import TRUST, spin_components
+from capture.results import window_table
 from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AXIS, BALL3D_SPHERE, BALL_COLOR,
                                    EVENTS_BALL, EVENTS_OFF, EVENTS_ON, EVENTS_SENSOR, EVENTS_SPIN_AXIS,
                                    FRAMES_BALL, FRAMES_IMAGE, OFF_COLOR, ON_COLOR, PIXEL_OFFSET, PLOT_AZIMUTH,
@@ -249,15 +249,14 @@ class ReviewLogger:
                              (PLOT_RPS_SIGMA, cols["rps_sigma_pct"].astype(np.float64)),
                              (PLOT_AXIS_SIGMA, cols["axis_sigma_deg"].astype(np.float64))):
             self.rec.send_columns(path, indexes=index, columns=rr.Scalars.columns(scalars=values))
-        trusted = cols["confidence"] >= TRUST
-        for path, sel in ((PLOT_RPM_TRUSTED, trusted), (PLOT_RPM_UNTRUSTED, ~trusted)):
+        win = window_table(Track.empty() if track is None else track, cols)
+        for path, sel in ((PLOT_RPM_TRUSTED, win["trusted"]), (PLOT_RPM_UNTRUSTED, ~win["trusted"])):
             if sel.any():
                 self.rec.send_columns(path, indexes=[time_column(t[sel])],
-                                      columns=rr.Scalars.columns(scalars=60.0 * rps[sel]))
-        parts = np.array([spin_components(a * w, v) for a, w, v in zip(axis, rps, cols["velocity_px_s"])])
-        for k, name in enumerate(("topspin", "sidespin", "gyro")):
+                                      columns=rr.Scalars.columns(scalars=win["rpm"][sel]))
+        for name in ("topspin", "sidespin", "gyro"):
             self.rec.send_columns(f"{PLOT_SPIN_PARTS}/{name}_rpm", indexes=index,
-                                  columns=rr.Scalars.columns(scalars=60.0 * parts[:, k]))
+                                  columns=rr.Scalars.columns(scalars=win[f"{name}_rpm"]))
         labels = [f"{v:.1f} rps ±{s:.1f} %" if np.isfinite(s) else f"{v:.1f} rps"
                   for v, s in zip(rps, cols["rps_sigma_pct"])]
         self.rec.send_columns(BALL3D_AXIS, indexes=index,

@@ -82,8 +82,9 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
             lg.flush_events()
         track = Track.from_columns(session.track())
         lg.track(track)
-        lg.spin(session.spin(), track)
-        lg.flights(format_flight_table(flight_table(track, session.spin())))
+        spin = session.spin()
+        lg.spin(spin, track)
+        lg.flights(format_flight_table(flight_table(track, spin)))
         mapping = event_to_frame or circle_mapping(session.attrs)
         if frames["video"] is not None:
             _log_video(lg, frames["video"], frames["t_us"], video_max_bytes=video_max_bytes,
