@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from capture.pipeline.html_report import write_html
-from capture.report import report
+from capture.pipeline.replay import session_results
 from capture.results import format_flight_table
 from capture.run import main as run_main
 
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     if not (session / "zarr.json").exists():
         run_main(["--demo", "--out", str(session), "--viewer", "none", "--quiet"])
     t0 = time.perf_counter()
-    print(format_flight_table(report(session)[0]))
+    print(format_flight_table(session_results(session)[0]))
     t_table = time.perf_counter() - t0
     t0 = time.perf_counter()
     page = write_html(session, out / "report.html")

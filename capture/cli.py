@@ -13,6 +13,7 @@ import sys
 COMMANDS = {
     "run": ("capture.run", "record a session (event camera + GoPro), then analyse it"),
     "replay": ("capture.replay", "detection and spin again over a session or a RAW file"),
+    "batch": ("capture.batch", "replay many sessions on Dask distributed into one season table"),
     "report": ("capture.report", "per-flight results of an analysed session (table, CSV)"),
     "review": ("capture.review.cli", "write a session's Rerun review (.rrd)"),
     "ingest": ("capture.ingest", "a RAW file or a GoPro video into a session"),

@@ -14,10 +14,8 @@ import sys
 import numpy as np
 
 from capture.cliargs import run_command
-from capture.events import Track
-from capture.results import (BALL_DIAMETER_M, flight_table, format_flight_table, window_table, write_csv,
-                             write_parquet)
-from capture.session import open_session
+from capture.pipeline.replay import session_results
+from capture.results import BALL_DIAMETER_M, format_flight_table, write_csv, write_parquet
 
 PROG = "python -m capture.report"
 
@@ -41,33 +39,11 @@ def main(argv=None) -> int:
     return run_command(PROG, lambda: _run(args))
 
 
-def report(session_path, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
-    """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
-
-    Raises
-    ------
-    ValueError
-        The session holds no track (it was not analysed yet).
-    """
-    from capture.pipeline.replay import event_camera
-
-    s = open_session(session_path)
-    track = Track.from_columns(s.track())
-    if len(track) == 0 and "track" not in s.root:
-        raise ValueError(f"{session_path}: not analysed yet (no ball track); run: python -m capture.replay "
-                         f"{session_path}")
-    spin = s.spin()
-    camera = event_camera(s) if ball_diameter_m else None
-    flights = flight_table(track, spin, focal_px=camera.focal_px if camera is not None else None,
-                           ball_diameter_m=ball_diameter_m)
-    return flights, window_table(track, spin)
-
-
 def _run(args) -> None:
     if args.ball_diameter is not None and not args.ball_diameter > 0:
         raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
     diameter = args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
-    flights, windows = report(args.session, ball_diameter_m=diameter)
+    flights, windows = session_results(args.session, ball_diameter_m=diameter)
     print(format_flight_table(flights))
     if diameter and len(flights["flight"]) and np.isnan(flights["speed_m_s"].astype(float)).all():
         print("note: no calibration of the event camera in the session: no distances or speeds")

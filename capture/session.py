@@ -99,7 +99,8 @@ class SessionWriteError(OSError):
     """The store could not be written (disk full, I/O error); the message says what is kept."""
 
 
-def _software_version() -> str:
+def software_version() -> str:
+    """The installed package's version ("unknown" when it is run from a bare checkout)."""
     try:
         return metadata.version("courtside-spin")
     except metadata.PackageNotFoundError:
@@ -531,7 +532,7 @@ def create_session(path, *, width: int, height: int, attrs: Mapping | None = Non
         "schema_version": SCHEMA_VERSION,
         "width": int(width),
         "height": int(height),
-        "software_version": _software_version(),
+        "software_version": software_version(),
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "closed": False,
         **(dict(attrs) if attrs else {}),
@@ -714,8 +715,10 @@ class Session:
     writer's appends; :meth:`reload` refreshes the root attributes.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, cache_chunks: int = 0):
         self.path = Path(path)
+        self._cache_chunks = cache_chunks
+        self._chunks: dict[int, np.ndarray] = {}  # chunk number -> its committed events, oldest first
         self.reload()
 
     def reload(self) -> None:
@@ -802,38 +805,73 @@ class Session:
     def events_range(self, i0: int, i1: int) -> np.ndarray:
         """Committed events with index ``i0 <= i < i1`` as an EVENT_DTYPE array."""
         i1 = min(i1, self.n_events)
+        if self._cache_chunks and i1 > i0:
+            return self._cached_range(i0, i1)
         out = np.empty(max(0, i1 - i0), dtype=EVENT_DTYPE)
         if len(out):
             for c, v in self._read("events", _EVENT_COLUMNS, i0, i1).items():
                 out[c] = v
         return out
 
-    def event_index(self, t_us: int) -> int:
-        """Index of the first committed event with ``t >= t_us`` (uses the ms index)."""
+    def _cached_range(self, i0: int, i1: int) -> np.ndarray:
+        """:meth:`events_range` through whole decompressed chunks, the last ``cache_chunks`` kept
+        (reads of nearby times then decompress each chunk once, not once per read)."""
+        pieces = []
+        for c in range(i0 // EVENT_CHUNK, (i1 - 1) // EVENT_CHUNK + 1):
+            c0 = c * EVENT_CHUNK
+            chunk = self._chunks.pop(c, None)
+            if chunk is None or c0 + len(chunk) < min(i1, c0 + EVENT_CHUNK):  # absent, or committed since
+                chunk = np.empty(min(self.n_events, c0 + EVENT_CHUNK) - c0, dtype=EVENT_DTYPE)
+                for name, v in self._read("events", _EVENT_COLUMNS, c0, c0 + len(chunk)).items():
+                    chunk[name] = v
+            self._chunks[c] = chunk  # the most recently used last
+            pieces.append(chunk[max(i0 - c0, 0):i1 - c0])
+        while len(self._chunks) > self._cache_chunks:
+            self._chunks.pop(next(iter(self._chunks)))
+        return pieces[0].copy() if len(pieces) == 1 else np.concatenate(pieces)
+
+    def _index_span(self, t_us: int) -> tuple[int, int]:
+        """Event indices ``lo <= hi`` between which the first committed event with ``t >= t_us``
+        lies, from the ms index (``(0, n)`` without one)."""
         n = self.n_events
-        if n == 0:
-            return 0
         index = self.root["index"]
         k_max = self._n("index")
-        lo, hi = 0, n
-        if k_max and "t0_ms" in index.attrs:
-            k = t_us // 1000 - int(index.attrs["t0_ms"])
-            if k < 0:
-                return 0
-            lo = int(self.read_column("index", "ms_to_idx", min(k, k_max - 1), min(k, k_max - 1) + 1)[0])
-            if k + 1 < k_max:
-                hi = int(self.read_column("index", "ms_to_idx", k + 1, k + 2)[0])
-            lo, hi = min(lo, n), min(hi, n)  # the index may be committed past our n
+        if not (k_max and "t0_ms" in index.attrs):
+            return 0, n
+        k = t_us // 1000 - int(index.attrs["t0_ms"])
+        if k < 0:
+            return 0, 0
+        k = min(k, k_max - 1)
+        bounds = self.read_column("index", "ms_to_idx", k, k + 2)  # one past: the next ms's first event
+        lo = min(int(bounds[0]), n)  # the index may be committed past our n
+        hi = min(int(bounds[1]), n) if len(bounds) > 1 else n
+        return lo, max(lo, hi)
+
+    def event_index(self, t_us: int) -> int:
+        """Index of the first committed event with ``t >= t_us`` (uses the ms index)."""
+        lo, hi = self._index_span(t_us)
         if hi <= lo:
             return lo
         t = self.read_column("events", "t", lo, hi)
         return lo + int(np.searchsorted(t, t_us, side="left"))
 
     def events(self, t_start_us: int | None = None, t_end_us: int | None = None) -> np.ndarray:
-        """Committed events with ``t_start_us <= t < t_end_us`` (``None``: unbounded)."""
-        i0 = 0 if t_start_us is None else self.event_index(int(t_start_us))
-        i1 = self.n_events if t_end_us is None else self.event_index(int(t_end_us))
-        return self.events_range(i0, i1)
+        """Committed events with ``t_start_us <= t < t_end_us`` (``None``: unbounded).
+
+        With the ms index, the events from the start's ms to the end's ms are read at once and
+        cut to the exact times (each stored chunk is decompressed once).
+        """
+        n = self.n_events
+        if "t0_ms" not in self.root["index"].attrs or not self._n("index"):
+            i0 = 0 if t_start_us is None else self.event_index(int(t_start_us))
+            i1 = n if t_end_us is None else self.event_index(int(t_end_us))
+            return self.events_range(i0, i1)
+        i0 = 0 if t_start_us is None else self._index_span(int(t_start_us))[0]
+        i1 = n if t_end_us is None else self._index_span(int(t_end_us))[1]
+        ev = self.events_range(i0, i1)
+        lo = 0 if t_start_us is None else int(np.searchsorted(ev["t"], t_start_us, side="left"))
+        hi = len(ev) if t_end_us is None else int(np.searchsorted(ev["t"], t_end_us, side="left"))
+        return ev[lo:max(lo, hi)]
 
     def iter_events(self, batch: int = EVENT_CHUNK, prefetch: bool = False):
         """Yield committed events in batches of at most ``batch`` (bounded memory).
@@ -853,6 +891,17 @@ class Session:
                 if i0 + batch < n:
                     upcoming = reader.submit(self.events_range, i0 + batch, i0 + 2 * batch)
                 yield current
+
+    def events_dask(self) -> dict:
+        """The committed events as Dask arrays, one per column (``t`` µs int64, ``x``/``y`` uint16,
+        ``p`` int8), chunked as stored (:data:`EVENT_CHUNK` events): for analyses larger than memory
+        or spread over a cluster (workers need the session at the same path). Needs ``dask``
+        (``pip install 'courtside-spin[cluster]'``).
+        """
+        import dask.array as da
+
+        n = self.n_events
+        return {c: da.from_zarr(self.root["events"][c])[:n] for c in _EVENT_COLUMNS}
 
     def triggers(self) -> np.ndarray:
         """All committed triggers (TRIGGER_DTYPE)."""
@@ -890,9 +939,14 @@ class Session:
         return {k: (v if v is not None else full[k]) for k, v in self._read(name, columns).items()}
 
 
-def open_session(path) -> Session:
-    """Open a session for reading; raises :class:`SessionError` with a one-line reason."""
-    return Session(path)
+def open_session(path, cache_chunks: int = 0) -> Session:
+    """Open a session for reading; raises :class:`SessionError` with a one-line reason.
+
+    ``cache_chunks``: keep this many decompressed chunks of events (2^20 events, 16 MiB each) for
+    many reads of nearby times, e.g. one per spin window (0: none, each read decompresses what
+    it needs).
+    """
+    return Session(path, cache_chunks)
 
 
 def disk_free_bytes(path) -> int:

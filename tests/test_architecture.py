@@ -7,7 +7,7 @@ Layers, bottom to top (a module may import its own layer and those below):
    session store ``capture.session``, the per-flight results ``capture.results``, ``calib``
 2. ``detect``, ``spin``, ``sim``, ``capture.ingest``, the Rerun review ``capture.review``
 3. the pipeline layer ``capture.pipeline`` (the only one that joins devices, detect and spin)
-4. command lines: ``capture.run``, ``capture.replay``, ``capture.report``, ``capture.cli``, every ``cli`` and
+4. command lines: ``capture.run``, ``capture.replay``, ``capture.batch``, ``capture.report``, ``capture.cli``, every ``cli`` and
    ``__main__``
 
 Imports inside functions count as much as those at the top of a module.
@@ -54,7 +54,7 @@ def import_graph() -> dict[str, set[str]]:
 
 def layer(module: str) -> int:
     parts = module.split(".")
-    if module in ("capture.run", "capture.replay", "capture.report", "capture.cli") or parts[-1] in ("cli", "__main__"):
+    if module in ("capture.run", "capture.replay", "capture.batch", "capture.report", "capture.cli") or parts[-1] in ("cli", "__main__"):
         return 4
     if module.startswith("capture.pipeline"):
         return 3

@@ -184,9 +184,9 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
     images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", doc)
     assert len(images) == 3  # the track, the flight's spin, its ball events
     assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
-    from capture.report import report
+    from capture.pipeline.replay import session_results
 
-    flights, _ = report(path)
+    flights, _ = session_results(path)
     assert flights["rpm"][0] == pytest.approx(1200.0, rel=0.03)
     assert f"<td>{flights['rpm'][0]:.0f}</td>" in doc and f"<td>{flights['tilt'][0]}</td>" in doc
     assert "Flight 0" in doc

@@ -101,6 +101,29 @@ def test_empty_session_reads_empty(tmp_path):
     assert len(s.triggers()) == 0 and len(s.track()["t_us"]) == 0 and s.spin()["axis"].shape == (0, 3)
 
 
+def test_chunk_cache_reads_the_same_events_and_follows_a_live_writer(tmp_path):
+    ev = _events(2 * S.EVENT_CHUNK + 54_321, seed=4)
+    w = S.create_session(tmp_path / "s", width=640, height=480)
+    w.append_events(ev[:S.EVENT_CHUNK + 1000])  # the second chunk partly committed
+    w.flush()
+    cached = S.open_session(tmp_path / "s", cache_chunks=1)
+    n = cached.n_events
+    assert np.array_equal(cached.events_range(S.EVENT_CHUNK - 10, n), ev[S.EVENT_CHUNK - 10:n])
+    w.append_events(ev[S.EVENT_CHUNK + 1000:])
+    w.close()
+    # the cached partial chunk is read again where rows were committed since
+    assert np.array_equal(cached.events_range(S.EVENT_CHUNK + 500, S.EVENT_CHUNK + 5000),
+                          ev[S.EVENT_CHUNK + 500:S.EVENT_CHUNK + 5000])
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        a, b = np.sort(rng.integers(0, 3_100_000, 2))
+        got = cached.events(a, b)
+        assert np.array_equal(got, time_slice(ev, a, b))
+        if len(got):
+            got["x"] = 0  # a caller's copy: the cache is unchanged
+    assert np.array_equal(cached.events(), ev) and len(cached._chunks) == 1
+
+
 def test_reader_follows_live_writer(tmp_path):
     ev = _events(50_000, seed=3)
     w = S.create_session(tmp_path / "s", width=640, height=480)

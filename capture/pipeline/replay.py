@@ -15,8 +15,11 @@ a batch of sessions can later run on a distributed engine unchanged:
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -30,8 +33,9 @@ from calib.store import load_calibration
 from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
+from capture.results import flight_table, window_table
 from capture.review import write_rrd
-from capture.session import open_session, update_session
+from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 
 BATCH_EVENTS = 1 << 20
@@ -79,6 +83,13 @@ class ReplayOptions:
     workers: int = 2
     windows_per_unit: int = 4
     tracker: dict = field(default_factory=dict)
+
+    def check(self) -> None:
+        """Raise ValueError naming the first count or duration that is not positive."""
+        for name in ("window_us", "max_window_us", "step_us", "min_events", "max_events", "workers",
+                     "windows_per_unit"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
 
 @dataclass
@@ -411,6 +422,69 @@ def _one_thread_per_worker() -> None:
     threadpool_limits(1)
 
 
+ANALYSED_SOURCES = ("detect", "spin", "calib", "capture/events.py", "capture/pipeline/replay.py")
+"""The code whose results a session's analysis stamp vouches for (packages or modules, relative to
+the project's import root): a change to any of them makes :func:`analysis_stamp` differ."""
+
+
+@functools.cache
+def _source_digest() -> str:
+    """Short SHA-256 of the source files of :data:`ANALYSED_SOURCES` (read once per process, as the
+    code it runs was imported once)."""
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for name in ANALYSED_SOURCES:
+        entry = root / name
+        for f in sorted(entry.rglob("*.py")) if entry.is_dir() else [entry]:
+            digest.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def analysis_stamp(options: ReplayOptions) -> dict:
+    """What a session's results were computed with: ``{"software": VERSION+SOURCE_DIGEST,
+    "settings": {...}}`` (the options that change results: all but ``workers``), as stored in the
+    session's ``analysis`` attribute and compared by :func:`analysed_with`."""
+    settings = {k: v for k, v in asdict(options).items() if k != "workers"}
+    return json.loads(json.dumps({"software": f"{software_version()}+{_source_digest()}",
+                                  "settings": settings}))
+
+
+def analysed_with(session, options: ReplayOptions) -> bool:
+    """True when ``session`` (a :class:`capture.session.Session`) holds results that this software
+    computed with these ``options`` (its ``analysis`` attribute equals :func:`analysis_stamp`)."""
+    return session.attrs.get("analysis") == analysis_stamp(options)
+
+
+def store_results(session_path, track: Track, spin_columns: dict, options: ReplayOptions) -> None:
+    """Replace a session's track and spin tables with these and stamp them (:func:`analysis_stamp`).
+    The old stamp goes first: a write cut short leaves a session that no batch skips."""
+    writer = update_session(session_path)
+    writer.set_attrs(analysis=None)
+    writer.write_track(track.columns())
+    writer.write_spin(spin_columns)
+    writer.close(analysis=analysis_stamp(options))
+
+
+def session_results(session_path, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
+    """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
+
+    Raises
+    ------
+    ValueError
+        The session holds no track (it was not analysed yet).
+    """
+    s = open_session(session_path)
+    track = Track.from_columns(s.track())
+    if len(track) == 0 and "track" not in s.root:
+        raise ValueError(f"{session_path}: not analysed yet (no ball track); run: python -m capture.replay "
+                         f"{session_path}")
+    spin_columns = s.spin()
+    camera = event_camera(s) if ball_diameter_m else None
+    flights = flight_table(track, spin_columns, focal_px=camera.focal_px if camera is not None else None,
+                           ball_diameter_m=ball_diameter_m)
+    return flights, window_table(track, spin_columns)
+
+
 @dataclass
 class ReplayResult:
     """What a replay found: the track, the spin columns and where the review file went."""
@@ -432,10 +506,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         Where to write the Rerun recording (none if ``None``).
     """
     options = options or ReplayOptions()
-    for name in ("window_us", "max_window_us", "step_us", "min_events", "max_events", "workers",
-                 "windows_per_unit"):
-        if getattr(options, name) <= 0:
-            raise ValueError(f"{name} must be positive, got {getattr(options, name)}")
+    options.check()
     if rrd_path is not None and Path(rrd_path).is_dir():
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
     # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
@@ -445,10 +516,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
                     initializer=_one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
-    writer = update_session(session_path)
-    writer.write_track(track.columns())
-    writer.write_spin(spin_columns)
-    writer.close()
+    store_results(session_path, track, spin_columns, options)
     if rrd_path is not None:
         write_rrd(session_path, rrd_path, progress=progress)
     return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)
