@@ -345,6 +345,207 @@ def _refine(x_us, p, sx, y_on, y_off, tmap, tol, method):
     return tmap, float(np.sqrt(np.sum(w * res**2) / np.sum(w)))
 
 
+def _on_time_knots(trig_t_us: np.ndarray, trig_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The LED's cumulative on-time on the event clock, from its trigger edges (µs, 1 = turned on):
+    knots ``(y_us, c_us)`` of the piecewise-linear cumulative on-time and its slopes before the first
+    and after the last edge (0 or 1)."""
+    order = np.argsort(trig_t_us, kind="stable")
+    y = np.asarray(trig_t_us, np.float64)[order]
+    state = (np.asarray(trig_p)[order] == 1).astype(np.float64)  # the LED's state after each edge
+    c = np.concatenate([[0.0], np.cumsum(np.diff(y) * state[:-1])])
+    return y, c, 1.0 - state[0], state[-1]
+
+
+def _on_fraction(y0_us: np.ndarray, y1_us: np.ndarray, knots) -> np.ndarray:
+    """Fraction of each event-clock interval ``[y0, y1]`` (µs) during which the LED was on."""
+    y, c, before, after = knots
+
+    def cum(q):
+        return np.interp(q, y, c) + np.minimum(q - y[0], 0.0) * before + np.maximum(q - y[-1], 0.0) * after
+
+    return (cum(y1_us) - cum(y0_us)) / np.maximum(y1_us - y0_us, 1e-9)
+
+
+LEVEL_ERROR = 0.01
+"""Model error of a partly lit frame's on-fraction from its LED levels (codec, gamma), as a share
+of the on/off swing (added to the offset's sigma, scaled by the exposure and by how unevenly
+rising and falling edges were timed)."""
+LEVEL_ERROR_SATURATED = 0.03
+"""The same for an LED whose on level is saturated in the video (at or above :data:`SATURATED_DN`):
+the clipped noise pulls the on level down (by 2 % of the swing in the simulator's 120 fps clips)."""
+SATURATED_DN = 250.0
+CONTRADICTED_CHI2 = 25.0
+"""A given exposure is contradicted by the LED frames when fitting the exposure too lowers their
+chi-square by more than this (5 sigma)."""
+
+
+def fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start: TimeMap, exposure_s, *,
+                   fit_exposure: bool = False, gamma: float = 2.2, search_s: float = 0.0) -> tuple[TimeMap, float]:
+    """Fit the map to every frame's LED brightness at once (forward model), from a close ``start``.
+
+    Each frame exposed over ``[t, t + e]`` (frame clock) sees the LED on for the fraction of
+    ``[map(t), map(t + e)]`` that the trigger edges (event clock) say it was on; its linearised
+    brightness ``(b / 255) ** gamma`` is ``lo + (hi - lo) * fraction``. Offset, drift, the two
+    levels (and the exposure when ``fit_exposure``) are fitted together by robust least squares
+    over the frames inside the triggers' span, so that no level is taken from frames that were
+    partly lit (the medians of :func:`led_edges` are pulled inward by them: a bias of a quarter of
+    a millisecond at 120 fps). The covariance comes from the fit's Jacobian and the spread of its
+    residuals (a model that fits badly reports a larger sigma); the offset's sigma is at least
+    half the range of offsets that fit within one sigma (its profile), which is what bounds it
+    when edges fall between exposures (short exposures, a blink period a multiple of the frame
+    period): then the offset is the middle of that range.
+
+    Parameters
+    ----------
+    brightness, t_frame_s : array_like, shape (N,)
+        LED-region brightness (0-255) and presentation time (s, frame clock) of every frame.
+    trig_t_us, trig_p : array_like, shape (M,)
+        Trigger edges on the event clock (µs) and whether the LED turned on (1) or off (0).
+    start : TimeMap
+        A map within a fraction of an exposure of the truth (e.g. :func:`match_edges`).
+    exposure_s : float or array_like, shape (N,)
+        Exposure per frame (s): one for the clip or one per frame (GPMF ``SHUT``); the start
+        value when ``fit_exposure``.
+    fit_exposure : bool
+        Fit one exposure for the clip too.
+    search_s : float
+        Before fitting, try offsets within ``± search_s`` of ``start`` (steps of a quarter
+        exposure) and start from the one whose frames fit best (a start a frame or more off).
+
+    Returns
+    -------
+    time_map : TimeMap
+        ``method="sync_box"``; ``rms_us`` is the brightness residual expressed as timing (µs).
+    exposure_s : float
+        The clip's exposure (fitted, or the median of the given ones), s.
+
+    Raises
+    ------
+    SyncError
+        When fewer than 8 frames lie inside the triggers' span, or the frames do not bound the
+        offset within ``max(search_s, exposure)`` (every edge between two exposures, at one phase).
+    """
+    tmap, e, _, _ = _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
+                                    fit_exposure=fit_exposure, gamma=gamma, search_s=search_s)
+    return tmap, e
+
+
+def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s, *, fit_exposure, gamma, search_s):
+    """:func:`fit_led_frames`, also returning the fit's squared residual over its inlier frames and
+    the residual variance per frame (linearised brightness units)."""
+    from scipy.optimize import least_squares
+
+    bl = (np.clip(np.asarray(brightness, np.float64), 0, None) / 255.0) ** gamma
+    t = np.asarray(t_frame_s, np.float64)
+    e0 = np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape).copy()
+    knots = _on_time_knots(np.asarray(trig_t_us, np.float64), np.asarray(trig_p))
+    y_lo, y_hi = knots[0][0], knots[0][-1]
+    inside = (start.to_event_us(t) >= y_lo) & (start.to_event_us(t + e0) <= y_hi)
+    t, bl, e0 = t[inside], bl[inside], e0[inside]
+    if len(t) < 8:
+        raise SyncError(f"only {len(t)} frames lie inside the span of the trigger edges (need 8)")
+    t_ref = float(np.mean(t))
+    off0 = float(start.to_event_us(t_ref))
+    scale_e = float(np.median(e0))
+
+    def fractions(x):
+        off, drift = x[0], x[1]
+        e = e0 * (x[4] * 1e-6 / scale_e) if fit_exposure else e0  # x[4]: the clip's exposure, µs
+        y0 = off + (1 + drift * 1e-6) * (t - t_ref) * 1e6
+        return _on_fraction(y0, y0 + (1 + drift * 1e-6) * e * 1e6, knots)
+
+    def levels(f):
+        """Least-squares ``lo, hi`` for fractions ``f`` (closed form)."""
+        A = np.stack([1 - f, f], axis=1)
+        return np.linalg.lstsq(A, bl, rcond=None)[0]
+
+    def residual(x):
+        f = fractions(x)
+        return bl - (x[2] + (x[3] - x[2]) * f)
+
+    def costs_at(x, offsets_us, mask):
+        """Squared residual of the frames in ``mask`` for each offset (µs), the levels solved and
+        the rest of ``x`` kept."""
+        out = []
+        for o in offsets_us:
+            f = fractions(np.concatenate([[o], x[1:]]))
+            lo, hi = levels(f)
+            out.append(float(np.sum((bl - lo - (hi - lo) * f)[mask] ** 2)))
+        return np.asarray(out)
+
+    x0 = np.array([off0, start.drift_ppm, 0.0, 0.0] + ([scale_e * 1e6] if fit_exposure else []))
+    every = np.ones(len(t), bool)
+    if search_s > 0:  # a coarse scan of the offset, the levels solved for each
+        grid = off0 + np.arange(-search_s, search_s + 1e-12, scale_e / 4) * 1e6
+        x0[0] = grid[int(np.argmin(costs_at(x0, grid, every)))]
+    f = fractions(x0)
+    x0[2], x0[3] = levels(f)
+    r0 = residual(x0)
+    sigma_b = max(1.4826 * float(np.median(np.abs(r0 - np.median(r0)))), 1e-6)
+    partial = bool(np.any((f > 0.02) & (f < 0.98)))
+    if partial:  # frames that saw an edge during their exposure time it: fit everything together
+        x_scale = [scale_e * 1e6 / 10, 10.0, 0.1, 0.1] + ([scale_e * 1e6 / 10] if fit_exposure else [])
+        sol = least_squares(residual, x0, loss="soft_l1", f_scale=3 * sigma_b, x_scale=x_scale)
+        x, r, jac = sol.x, sol.fun, sol.jac
+    else:  # every edge fell between two exposures: only the gaps bound them (the profile below)
+        x, r, jac = x0, r0, None
+    s_mad = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-9)
+    keep = np.abs(r) <= 4 * s_mad  # outlier frames (compression, a passing player) do not set sigma
+    n_free = len(x) if partial else 3
+    s2 = max(float(np.sum(r[keep] ** 2) / max(int(keep.sum()) - n_free, 1)), 1e-12)
+    cov = np.zeros((2, 2))
+    if partial:
+        scale = np.linalg.norm(jac[keep], axis=0)
+        scale[scale == 0] = 1.0
+        normal = (jac[keep] / scale).T @ (jac[keep] / scale)
+        if np.linalg.cond(normal) > 1e12:  # e.g. one edge phase only: offset and exposure trade off
+            cov = np.diag([(max(search_s, scale_e) * 1e6) ** 2, start.cov[1, 1]])  # known to a period
+        else:
+            cov = (np.linalg.inv(normal) / np.outer(scale, scale) * s2)[:2, :2]
+    else:
+        cov[1, 1] = start.cov[1, 1]  # the drift as the edges gave it
+    # the offset's profile: how far it moves, the levels refitted, before the fit is worse by one
+    # sigma (chi-square + 1); wider than the Jacobian's sigma where edges fall between exposures
+    reach_us = max(search_s, scale_e) * 1e6
+    d = np.concatenate([[0.0], np.geomspace(0.5, reach_us, 40)])
+    base = costs_at(x, [x[0]], keep)[0]
+
+    def crossing(sign):
+        c = costs_at(x, x[0] + sign * d, keep) - base
+        above = np.flatnonzero(c > s2)
+        if not len(above):
+            raise SyncError(f"the LED frames do not time the clocks within {reach_us / 1e3:.1f} ms: every LED "
+                            "edge fell between two exposures at the same phase; use a longer exposure or a "
+                            "blink period that is not a multiple of the frame period")
+        i = above[0]
+        return float(np.interp(s2, [c[i - 1], c[i]], [d[i - 1], d[i]])) if i else 0.0
+
+    left, right = crossing(-1.0), crossing(1.0)
+    if not partial:
+        x = x.copy()
+        x[0] += 0.5 * (right - left)  # the middle of the range that fits
+    cov[0, 0] = max(cov[0, 0], (0.5 * (left + right)) ** 2)
+    lo, hi = (x[2], x[3]) if partial else levels(fractions(x))
+    if not hi - lo > 0:
+        raise SyncError("the LED's fitted on level is not above its off level: check the LED region")
+    e_fit = x[4] * 1e-6 if fit_exposure else scale_e
+    # the levels' own model error (codec, gamma, a saturated LED whose clipped noise pulls its on
+    # level down) biases every partly lit frame's fraction alike: it shifts rising and falling
+    # edges in opposite directions, so it cancels in the offset only where both are timed
+    f = fractions(x)
+    slope = fractions(np.concatenate([[x[0] + 1.0], x[1:]])) - f  # > 0: a rising edge in the exposure
+    lit = keep & (f > 0.02) & (f < 0.98)
+    n_rise, n_fall = int(np.sum(lit & (slope > 0))), int(np.sum(lit & (slope < 0)))
+    if n_rise + n_fall:
+        on_dn = float(np.median(np.asarray(brightness, np.float64)[inside][f >= 0.98])) if np.any(f >= 0.98) else 0.0
+        level_error = LEVEL_ERROR_SATURATED if on_dn >= SATURATED_DN else LEVEL_ERROR
+        imbalance = max(abs(n_rise - n_fall) / (n_rise + n_fall), 1.0 / np.sqrt(n_rise + n_fall))
+        cov[0, 0] += (level_error * imbalance * e_fit * 1e6) ** 2
+    tmap = TimeMap(offset_us=float(x[0]), drift_ppm=float(x[1]), t_ref_s=t_ref, cov=cov,
+                   rms_us=float(np.sqrt(s2) / (hi - lo) * e_fit * 1e6), n=int(keep.sum()), method="sync_box")
+    return tmap, float(e_fit), float(np.sum(r[keep] ** 2)), s2
+
+
 def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = None, channel: int | None = None,
                  led_on_edge: int = 1, max_drift_ppm: float = 200.0, prior: TimeMap | None = None,
                  prior_window_s: float | None = None, gamma: float = 2.2) -> tuple[TimeMap, float]:
@@ -394,7 +595,19 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = 
     tmap = match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm,
                        prior=prior, prior_window_s=prior_window_s)
     if exposure_s is not None:
-        return tmap, e0
+        fixed, _, cost, _ = _fit_led_frames(brightness, t, tr["t"], trig_p, tmap, e0, fit_exposure=False,
+                                            gamma=gamma, search_s=period)
+        # a given exposure that the frames contradict (a wrong value typed, a shutter that changed)
+        # leaves the offset uncertain by as much as the best-fitting exposure moves it
+        try:
+            free, _, cost_free, s2_free = _fit_led_frames(brightness, t, tr["t"], trig_p, fixed, e0,
+                                                          fit_exposure=True, gamma=gamma, search_s=0.0)
+        except SyncError:
+            return fixed, e0
+        if (cost - cost_free) / s2_free > CONTRADICTED_CHI2:
+            shift = free.to_event_us(fixed.t_ref_s) - fixed.offset_us
+            fixed.cov = fixed.cov + np.diag([shift ** 2, 0.0])
+        return fixed, e0
     y = tr["t"].astype(np.float64)
     y_on, y_off = np.sort(y[trig_p == 1]), np.sort(y[trig_p == 0])
     grid = np.linspace(0.1, 1.0, 19) * period
@@ -411,7 +624,22 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = 
             e += 0.5 * (grid[1] - grid[0]) * (rms[i - 1] - rms[i + 1]) / den
     te, pe, se = led_edges(brightness, t, e, gamma=gamma)
     tmap = _refine(te * 1e6, pe, se * 1e6, y_on, y_off, tmap, 1.5 * period * 1e6, "sync_box")[0]
-    return tmap, float(e)
+    best, e_best, cost, s2 = _fit_led_frames(brightness, t, tr["t"], trig_p, tmap, e, fit_exposure=True,
+                                             gamma=gamma, search_s=period)
+    # the exposure's profile: every exposure the frames do not reject (chi-square within 1 of the
+    # best) with its own best offset; the offset is uncertain by at least half their range
+    offsets = [best.offset_us]
+    for e_try in np.linspace(0.1, 1.0, 10) * period:
+        try:
+            m, _, c, _ = _fit_led_frames(brightness, t, tr["t"], trig_p, best, e_try, fit_exposure=False,
+                                         gamma=gamma, search_s=period)
+        except SyncError:
+            continue
+        if (c - cost) / s2 <= 1.0:
+            offsets.append(float(m.to_event_us(best.t_ref_s)))
+    half_range = 0.5 * (max(offsets) - min(offsets))
+    best.cov = best.cov + np.diag([half_range ** 2, 0.0])
+    return best, float(e_best)
 
 
 # --------------------------------------------------------------------------- (b) activity

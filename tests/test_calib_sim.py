@@ -63,3 +63,5 @@ def test_sync_on_simulated_flight(sim_rec, downloaded):
     assert err_b <= period_us
     assert err_a <= 500.0
     assert err_ae <= 500.0
+    # right, or flagged: each error within three of its own sigmas
+    assert err_a <= 3 * tmap.sigma_us(v.t_s).max() and err_ae <= 3 * tmap_e.sigma_us(v.t_s).max()

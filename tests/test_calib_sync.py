@@ -75,8 +75,14 @@ def test_sync_box_meets_half_millisecond(fps, exposure_frac):
     # lock the shutter and pass exposure_s (the estimate still lands within 5 % of a period)
     assert err2.max() <= (500.0 if fps > 100 else 0.05e6 / fps)
     assert abs(tmap.drift_ppm - DRIFT_PPM) < 10
-    assert err.max() < 5 * tmap.sigma_us(t_frame).max() + 50  # the uncertainty is honest
+    assert err.max() <= 3 * tmap.sigma_us(t_frame).max()  # the uncertainty is honest
+    assert err2.max() <= 3 * tmap2.sigma_us(t_frame).max()
     assert tmap.n > 100
+    # a wrong exposure typed in: the frames contradict it, and the sigma says so
+    tmap3, _ = fit_sync_box(brightness, t_frame, triggers, exposure_s=0.6 * e)
+    err3 = np.abs(tmap3.to_event_us(t_frame) - true_event_us(t_frame))
+    print(f"   exposure typed 40 % short: max err {err3.max():.1f} us, sigma {tmap3.sigma_us(t_frame).max():.1f} us")
+    assert err3.max() <= 3 * tmap3.sigma_us(t_frame).max()
 
 
 def test_sync_box_from_images_finds_led_roi():
