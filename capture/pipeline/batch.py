@@ -30,8 +30,8 @@ from tqdm import tqdm
 
 from capture.cliargs import describe
 from capture.events import SPIN_COLUMNS, Track, concat_tables
-from capture.pipeline.replay import (ReplayOptions, analysed_with, event_camera, session_results, spin_flight,
-                                     store_results, track_session)
+from capture.pipeline.replay import (ReplayOptions, analysed_with, event_camera, one_thread_per_worker,
+                                     session_results, spin_flight, store_results, track_session)
 from capture.session import Session, open_session
 from detect.track import window_starts_us
 
@@ -116,9 +116,7 @@ class OneThreadPerWorker(WorkerPlugin):
     inside it would only oversubscribe the cores."""
 
     def setup(self, worker) -> None:
-        from capture.pipeline.replay import _one_thread_per_worker
-
-        _one_thread_per_worker()
+        one_thread_per_worker()
 
 
 WORKER_CONFIG = {"distributed.worker.profile.enabled": False}

@@ -415,7 +415,7 @@ WORKER_PRELOAD = ["capture.session", "detect", "spin"]
 """Imported once by the worker processes' forkserver (most of their start-up time)."""
 
 
-def _one_thread_per_worker() -> None:
+def one_thread_per_worker() -> None:
     """Worker processes already run in parallel: BLAS and OpenCV thread pools inside them only
     oversubscribe the cores (measured: a 2-worker pool 3x slower than one process without this)."""
     cv2.setNumThreads(1)
@@ -513,7 +513,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     # once tracking is done, this process joins in
     workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
     with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
-                    initializer=_one_thread_per_worker) as work:
+                    initializer=one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     store_results(session_path, track, spin_columns, options)
