@@ -13,6 +13,7 @@ Needs the ``cluster`` extra: ``pip install -e ".[cluster]"``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import os
 import sys
@@ -20,8 +21,9 @@ from pathlib import Path
 
 from capture.cliargs import positive_int, run_command
 from capture.pipeline.batch import OneThreadPerWorker, local_cluster, run_batch
-from capture.pipeline.replay import ReplayOptions
-from capture.results import BALL_DIAMETER_M, write_parquet
+from capture.replay import add_spin_args, spin_options
+from capture.report import add_ball_args, ball_diameter_m
+from capture.results import write_parquet
 
 PROG = "python -m capture.batch"
 
@@ -39,14 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"worker processes of the local cluster (default: {os.cpu_count()}, the cores)")
     ap.add_argument("--force", action="store_true", help="analyse sessions again that already hold results "
                     "of the same settings and software")
-    ball = ap.add_mutually_exclusive_group()
-    ball.add_argument("--ball", choices=sorted(BALL_DIAMETER_M), help="the ball, for distances and speeds")
-    ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
-    ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
-    ap.add_argument("--max-window-us", type=int, default=ReplayOptions.max_window_us,
-                    help="longest spin window (for balls that fire few events), µs")
-    ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us, help="time between spin windows, µs")
-    ap.add_argument("--method", choices=["fast", "paper"], default="fast")
+    add_ball_args(ap)
+    add_spin_args(ap)
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     return ap
 
@@ -70,11 +66,8 @@ def _run(args) -> int:
     except ImportError as exc:
         raise ImportError(f"the batch runs on Dask distributed, which is not installed ({exc}); "
                           "install it with: pip install 'courtside-spin[cluster]'") from None
-    if args.ball_diameter is not None and not args.ball_diameter > 0:
-        raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
-    diameter = args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
-    options = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us, step_us=args.step_us,
-                            method=args.method)
+    diameter = ball_diameter_m(args)
+    options = spin_options(args)
     options.check()
     out = Path(args.out)
     windows_out = Path(args.windows_out) if args.windows_out else out.with_name(out.stem + "_windows" + out.suffix)
@@ -84,13 +77,13 @@ def _run(args) -> int:
     missing = [s for s in args.sessions if not Path(s).is_dir()]
     if missing and args.scheduler is None:  # remote workers may see paths this machine does not
         raise FileNotFoundError(f"{missing[0]}: no such session directory")
-    if args.scheduler:
-        client = Client(args.scheduler)
-    else:
-        dashboard = ":8787" if importlib.util.find_spec("bokeh") else None
-        cluster = local_cluster(args.workers or os.cpu_count(), dashboard_address=dashboard)
-        client = Client(cluster)
-    with client:
+    with contextlib.ExitStack() as stack:
+        if args.scheduler:
+            client = stack.enter_context(Client(args.scheduler))
+        else:
+            dashboard = ":8787" if importlib.util.find_spec("bokeh") else None
+            cluster = stack.enter_context(local_cluster(args.workers or os.cpu_count(), dashboard_address=dashboard))
+            client = stack.enter_context(Client(cluster))
         client.register_plugin(OneThreadPerWorker())
         n_workers = len(client.scheduler_info()["workers"])
         link = client.dashboard_link if client.scheduler_info().get("services", {}).get("dashboard") else None
@@ -98,8 +91,6 @@ def _run(args) -> int:
               + (link or "none (pip install bokeh)"))
         result = run_batch(args.sessions, client, options, force=args.force, ball_diameter_m=diameter,
                            progress=not args.quiet)
-        if not args.scheduler:
-            client.cluster.close()
     _write(result.flights, out)
     _write(result.windows, windows_out)
     n = len(result.analysed) + len(result.skipped) + len(result.failed)

@@ -10,7 +10,6 @@ import argparse
 import sys
 from pathlib import Path
 
-
 from capture.cliargs import box, positive_int, run_command
 from capture.ingest import session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
@@ -18,6 +17,23 @@ from capture.results import flight_table, format_flight_table
 from capture.session import open_session
 
 PROG = "python -m capture.replay"
+
+
+def add_spin_args(ap: argparse.ArgumentParser) -> None:
+    """The spin-window options of an analysis (``--window-us``, ``--max-window-us``, ``--step-us``,
+    ``--method``); :func:`spin_options` reads them back."""
+    ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
+    ap.add_argument("--max-window-us", type=int, default=ReplayOptions.max_window_us,
+                    help="longest spin window (for balls that fire few events), µs")
+    ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
+                    help="time between spin windows, µs")
+    ap.add_argument("--method", choices=["fast", "paper"], default="fast")
+
+
+def spin_options(args, **options) -> ReplayOptions:
+    """:class:`ReplayOptions` from the arguments of :func:`add_spin_args` (and ``options``)."""
+    return ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us, step_us=args.step_us,
+                         method=args.method, **options)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,12 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="video shutter time in seconds when locked (default: estimated)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
-    ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
-    ap.add_argument("--max-window-us", type=int, default=ReplayOptions.max_window_us,
-                    help="longest spin window (for balls that fire few events), µs")
-    ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
-                    help="time between spin windows, µs")
-    ap.add_argument("--method", choices=["fast", "paper"], default="fast")
+    add_spin_args(ap)
     ap.add_argument("--workers", type=positive_int, default=ReplayOptions.workers,
                     help="processes in all, this one included (spin runs in the others while this one tracks)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -63,8 +74,7 @@ def _run(args) -> None:
     damage = open_session(session_path).damage
     if damage:
         print(f"note: {session_path}: {damage}", file=sys.stderr)
-    opts = ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us,
-                         step_us=args.step_us, method=args.method, workers=args.workers)
+    opts = spin_options(args, workers=args.workers)
     result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     n_flights = len(result.track.flight_ids())
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "

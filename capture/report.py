@@ -20,12 +20,30 @@ from capture.results import BALL_DIAMETER_M, format_flight_table, write_csv, wri
 PROG = "python -m capture.report"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=PROG, description="Print (and export) the per-flight results of a session.")
-    ap.add_argument("session", help="session directory (analysed by capture.run or capture.replay)")
+def add_ball_args(ap: argparse.ArgumentParser) -> None:
+    """``--ball`` (a preset) or ``--ball-diameter`` (metres); :func:`ball_diameter_m` reads them back."""
     ball = ap.add_mutually_exclusive_group()
     ball.add_argument("--ball", choices=sorted(BALL_DIAMETER_M), help="the ball, for distances and speeds")
     ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
+
+
+def ball_diameter_m(args) -> float | None:
+    """The ball's diameter (m) from the arguments of :func:`add_ball_args`, or None when neither is given.
+
+    Raises
+    ------
+    ValueError
+        ``--ball-diameter`` is not positive.
+    """
+    if args.ball_diameter is not None and not args.ball_diameter > 0:
+        raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
+    return args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description="Print (and export) the per-flight results of a session.")
+    ap.add_argument("session", help="session directory (analysed by capture.run or capture.replay)")
+    add_ball_args(ap)
     ap.add_argument("--csv", metavar="FILE", help="write the per-flight table as CSV")
     ap.add_argument("--windows-csv", metavar="FILE", help="write the per-window table as CSV")
     ap.add_argument("--parquet", metavar="FILE", help="write the per-flight table as Parquet")
@@ -40,9 +58,7 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> None:
-    if args.ball_diameter is not None and not args.ball_diameter > 0:
-        raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
-    diameter = args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
+    diameter = ball_diameter_m(args)
     flights, windows = session_results(args.session, ball_diameter_m=diameter)
     print(format_flight_table(flights))
     if diameter and len(flights["flight"]) and np.isnan(flights["speed_m_s"].astype(float)).all():

@@ -830,18 +830,20 @@ class Session:
             self._chunks.pop(next(iter(self._chunks)))
         return pieces[0].copy() if len(pieces) == 1 else np.concatenate(pieces)
 
+    def _indexed(self) -> bool:
+        """Whether the ms index has committed rows to look times up in."""
+        return "t0_ms" in self.root["index"].attrs and self._n("index") > 0
+
     def _index_span(self, t_us: int) -> tuple[int, int]:
         """Event indices ``lo <= hi`` between which the first committed event with ``t >= t_us``
         lies, from the ms index (``(0, n)`` without one)."""
         n = self.n_events
-        index = self.root["index"]
-        k_max = self._n("index")
-        if not (k_max and "t0_ms" in index.attrs):
+        if not self._indexed():
             return 0, n
-        k = t_us // 1000 - int(index.attrs["t0_ms"])
+        k = t_us // 1000 - int(self.root["index"].attrs["t0_ms"])
         if k < 0:
             return 0, 0
-        k = min(k, k_max - 1)
+        k = min(k, self._n("index") - 1)
         bounds = self.read_column("index", "ms_to_idx", k, k + 2)  # one past: the next ms's first event
         lo = min(int(bounds[0]), n)  # the index may be committed past our n
         hi = min(int(bounds[1]), n) if len(bounds) > 1 else n
@@ -862,7 +864,7 @@ class Session:
         cut to the exact times (each stored chunk is decompressed once).
         """
         n = self.n_events
-        if "t0_ms" not in self.root["index"].attrs or not self._n("index"):
+        if not self._indexed():  # look each end up (reading only times), then read the range
             i0 = 0 if t_start_us is None else self.event_index(int(t_start_us))
             i1 = n if t_end_us is None else self.event_index(int(t_end_us))
             return self.events_range(i0, i1)

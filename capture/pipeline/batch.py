@@ -99,8 +99,9 @@ class SessionTables:
 
 def tables_unit(session_path: str, ball_diameter_m: float | None) -> SessionTables:
     """The per-flight and per-window tables of an analysed session."""
-    flights, windows = session_results(session_path, ball_diameter_m=ball_diameter_m)
-    return SessionTables(flights, windows, open_session(session_path).damage)
+    s = open_session(session_path)
+    flights, windows = session_results(s, ball_diameter_m=ball_diameter_m)
+    return SessionTables(flights, windows, s.damage)
 
 
 def store_unit(session_path: str, track: Track, spins: Sequence[dict], options: ReplayOptions,

@@ -35,7 +35,7 @@ from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
 from capture.results import flight_table, window_table
 from capture.review import write_rrd
-from capture.session import open_session, software_version, update_session
+from capture.session import Session, open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 
 BATCH_EVENTS = 1 << 20
@@ -465,19 +465,23 @@ def store_results(session_path, track: Track, spin_columns: dict, options: Repla
     writer.close(analysis=analysis_stamp(options))
 
 
-def session_results(session_path, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
+def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
     """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
+
+    Parameters
+    ----------
+    session : path or capture.session.Session
+        The session's directory, or the session already open.
 
     Raises
     ------
     ValueError
         The session holds no track (it was not analysed yet).
     """
-    s = open_session(session_path)
+    s = session if isinstance(session, Session) else open_session(session)
     track = Track.from_columns(s.track())
     if len(track) == 0 and "track" not in s.root:
-        raise ValueError(f"{session_path}: not analysed yet (no ball track); run: python -m capture.replay "
-                         f"{session_path}")
+        raise ValueError(f"{s.path}: not analysed yet (no ball track); run: python -m capture.replay {s.path}")
     spin_columns = s.spin()
     camera = event_camera(s) if ball_diameter_m else None
     flights = flight_table(track, spin_columns, focal_px=camera.focal_px if camera is not None else None,
