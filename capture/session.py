@@ -578,21 +578,23 @@ def _remove_store(path: Path) -> None:
     """Delete a session's Zarr entries, keeping the other files (the RAW stream, the videos)."""
     import shutil
 
-    for name in _STORE_ENTRIES:
-        entry = path / name
-        if entry.is_dir():
-            # writes of a failed creation may still land (or be renamed) from Zarr's I/O thread:
-            # retry a little
-            for attempt in range(20):
+    # writes of a failed creation may still land (or be renamed) from Zarr's I/O thread, during the
+    # removal or just after it: remove until nothing has come back 50 ms later
+    for attempt in range(20):
+        for name in _STORE_ENTRIES:
+            entry = path / name
+            if entry.is_dir():
                 try:
                     shutil.rmtree(entry)
-                    break
                 except OSError as exc:
                     if exc.errno not in (errno.ENOTEMPTY, errno.ENOENT) or attempt == 19:
                         raise
-                    time.sleep(0.05)
-        elif entry.exists():
-            entry.unlink()
+            elif entry.exists():
+                entry.unlink()
+        time.sleep(0.05)
+        if not any((path / name).exists() for name in _STORE_ENTRIES):
+            return
+    raise OSError(errno.EBUSY, f"{path}: the old store keeps coming back (another process writing it?)")
 
 
 def update_session(path, flush_interval_s: float = 1.0) -> SessionWriter:
