@@ -63,11 +63,12 @@ class DecoderState:
                 self.first_damage_word = int(word_index)
 
 
-def check_time_order(t: np.ndarray, st: DecoderState, word_index: int) -> None:
+def check_time_order(t: np.ndarray, st: DecoderState, locate) -> None:
     """Count CD events earlier than an event before them (a damaged time word), as damage.
 
     ``t`` is a batch's contiguous int64 event times (µs) in stream order; ``st.t_max`` carries
-    the latest time across batches. The common in-order case costs one comparison pass.
+    the latest time across batches; ``locate(i)`` gives the stream word index that produced
+    event ``i`` (the damage offset). The common in-order case costs one comparison pass.
     """
     if not len(t):
         return
@@ -76,7 +77,8 @@ def check_time_order(t: np.ndarray, st: DecoderState, word_index: int) -> None:
         prior = np.empty_like(peak)
         prior[0] = st.t_max
         np.maximum(peak[:-1], st.t_max, out=prior[1:])
-        st.damage("events_time_backward", np.count_nonzero(t < prior), word_index)
+        back = t < prior
+        st.damage("events_time_backward", np.count_nonzero(back), locate(int(np.argmax(back))))
         st.t_max = max(st.t_max, int(peak[-1]))
     else:
         st.t_max = int(t[-1])

@@ -105,10 +105,11 @@ def _decode(head: np.ndarray, mask: np.ndarray | None, st: DecoderState) -> tupl
     scratch = np.right_shift(hc, 22)           # one reused temporary keeps the working set small
     scratch &= 0x3F
     t |= scratch
-    check_time_order(t, st, w0)
 
     def word_of(j):                            # stream word index of CD word j
         return w0 + (j if noncd is None else int(np.flatnonzero(cd)[j]))
+
+    check_time_order(t, st, word_of)
 
     if mask is None:
         events = make_events(n_cd)

@@ -272,7 +272,9 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         keep = bounds if keep is None else keep & bounds
     if keep is not None:
         t, x, y, p = (a.compress(keep) for a in (t, x, y, p))
-    check_time_order(t, st, w0)
+        located = locate
+        locate = lambda i: located(int(np.flatnonzero(keep)[i]))  # noqa: E731 (index among the kept)
+    check_time_order(t, st, locate)
     ev = make_events(len(t))
     ev["t"] = t
     xy = y.astype(np.uint32)

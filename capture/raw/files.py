@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void, concatenate
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
@@ -51,30 +51,13 @@ class RawFile:
     time_shift_us: int = 0
 
 
-class _Growing:
-    """An array of records appended batch by batch into one buffer (doubling when full)."""
-
-    def __init__(self, dtype: np.dtype, capacity: int):
-        self._buf = np.empty(max(capacity, 1), dtype)
-        self._n = 0
-
-    def append(self, records: np.ndarray) -> None:
-        end = self._n + len(records)
-        if end > len(self._buf):
-            bigger = np.empty(max(2 * len(self._buf), end), self._buf.dtype)
-            as_void(bigger)[:self._n] = as_void(self._buf)[:self._n]
-            self._buf = bigger
-        as_void(self._buf)[self._n:end] = as_void(records)
-        self._n = end
-
-    def array(self) -> np.ndarray:
-        """The records so far (a view: the unused tail of the buffer is never touched)."""
-        return self._buf[:self._n]
+MAX_THREADS = 4
+"""Most threads :func:`read` uses by default."""
 
 
 def read(path, *, time_shift: bool = False, strict: bool = False, format: str | None = None,
          width: int | None = None, height: int | None = None,
-         chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> RawFile:
+         chunk_bytes: int = DEFAULT_CHUNK_BYTES, threads: int | None = None) -> RawFile:
     """Read and decode a whole RAW file.
 
     Parameters
@@ -89,6 +72,9 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
         Override (or supply, for header-less files) the header's format and geometry.
     chunk_bytes : int
         Bytes decoded per batch (bounds the temporaries, not the result).
+    threads : int, optional
+        Parts of the file decoded at once (default: the machine's cores, at most 4); the
+        result is the same for any number (see :meth:`capture.raw.RawReader.decode_all`).
 
     Raises
     ------
@@ -109,22 +95,17 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
     if reader.width is None or reader.height is None:
         reader.close()
         raise RawFormatError(f"{path}: the header gives no sensor geometry; pass width= and height=")
-    # One output buffer sized for about one event per word (grown when vectors give more):
-    # large ones are mapped with huge pages, and each batch's own arrays are reused memory.
-    n_words = max(0, (reader.size_bytes or 0) - reader.header_size) // reader.decoder.word_bytes
-    out = _Growing(EVENT_DTYPE, min(n_words, 1 << 25))
-    tr_parts = []
-    for events, triggers in reader:
-        out.append(events)
-        if len(triggers):
-            tr_parts.append(triggers)
+    if threads is None:
+        threads = min(os.cpu_count() or 1, MAX_THREADS)
+    ev_parts, tr_parts = reader.decode_all(threads)
     message = reader.damage_message()
     if message:
         if strict:
             raise RawFormatError(message)
         warnings.warn(message, RawDamageWarning, stacklevel=2)
     return RawFile(
-        events=out.array(), triggers=concatenate(tr_parts, TRIGGER_DTYPE),
+        events=concatenate([e for e in ev_parts if len(e)], EVENT_DTYPE),
+        triggers=concatenate([t for t in tr_parts if len(t)], TRIGGER_DTYPE),
         width=int(reader.width), height=int(reader.height), format=reader.format,
         header=reader.header, stats=reader.decoder.stats, time_shift_us=reader.decoder.time_shift_us)
 

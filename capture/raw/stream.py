@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
-from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState
+from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, STAT_KEYS, DecoderState
 from capture.raw.errors import RawFormatError
 from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
 
@@ -152,6 +153,49 @@ class StreamDecoder:
             return evt2.decode_words(words, self._state)
         return evt2.decode_words_21(words, self._state, endianness=self.endianness)
 
+    def speculative(self, preceding, offset_bytes: int) -> StreamDecoder:
+        """A decoder for the bytes from stream offset ``offset_bytes`` on (word-aligned), its state
+        guessed by decoding ``preceding`` (the bytes just before it, a few thousand words) from
+        scratch; its counters start at zero there. :meth:`follows` says whether the guess was
+        right. (Used to decode parts of a file at once: :meth:`RawReader.decode_all`.)"""
+        st = self._state
+        guess = StreamDecoder(self.format, endianness=self.endianness, width=st.width, height=st.height,
+                              time_base_us=self._time_base_us)
+        guess.decode(preceding)
+        g = guess._state
+        g.stats = dict.fromkeys(STAT_KEYS, 0)
+        g.first_damage_word = None
+        g.words_seen = offset_bytes // self.word_bytes
+        guess.bytes_in = offset_bytes
+        guess._guessed = _decoding_state(g)
+        return guess
+
+    def follows(self, earlier: StreamDecoder) -> int | None:
+        """Whole wrap periods to add to this (speculative) decoder's times when its guessed start
+        state is the state ``earlier`` ended in, else None (the guess was wrong)."""
+        mine, theirs = self._guessed, _decoding_state(earlier._state)
+        loops = theirs[0] - mine[0]
+        shift = loops * WRAP_US[self.format]
+        if theirs[1] - mine[1] != shift or theirs[2] - mine[2] != shift or theirs[3:] != mine[3:] or earlier._tail:
+            return None
+        return loops
+
+    def absorb(self, later: StreamDecoder, loops: int) -> None:
+        """Continue as ``later`` (the decoder of the bytes that follow this one's, whose times
+        are ``loops`` wrap periods behind): its end state and counters are taken over."""
+        st, other = self._state, later._state
+        for key, value in other.stats.items():
+            st.stats[key] += value
+        if other.first_damage_word is not None and st.first_damage_word is None:
+            st.first_damage_word = other.first_damage_word
+        shift = loops * WRAP_US[self.format]
+        st.loops, st.t_us, st.t_max = other.loops + loops, other.t_us + shift, other.t_max + shift
+        st.started, st.th_raw, st.tl, st.y, st.base_x, st.base_pol = (
+            other.started, other.th_raw, other.tl, other.y, other.base_x, other.base_pol)
+        st.words_seen, st.last_words = other.words_seen, other.last_words
+        self.bytes_in = later.bytes_in
+        self._tail = later._tail
+
     def finish(self) -> None:
         """End of stream: count an incomplete last word (and EVT3 vector triplet) as damage."""
         if self.format == "EVT3":
@@ -159,6 +203,19 @@ class StreamDecoder:
         if self._tail:
             self._state.damage("trailing_bytes", len(self._tail), self._state.words_seen)
             self._tail = b""
+
+
+def _decoding_state(st: DecoderState) -> tuple:
+    """What decoding the next word depends on: loops, the times (µs), then the rest."""
+    return (st.loops, st.t_us, st.t_max, st.started, st.th_raw, st.tl, st.y, st.base_x, st.base_pol)
+
+
+PARALLEL_MIN_BYTES = 4 << 20
+"""Files with fewer bytes of words are decoded in one thread (the parts would be too small)."""
+
+GUESS_WORDS = 1 << 14
+"""Words before a part decoded to guess the decoder state at its start (4x more while that
+does not reach a time word, and an EVT3 row word, up to 4 Mi words)."""
 
 
 class RawReader:
@@ -285,6 +342,56 @@ class RawReader:
         finally:
             self.close()
 
+    def decode_all(self, threads: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Decode the whole file in ``threads`` parts at once; returns the events and triggers
+        batches in stream order (equal to iterating the reader, and with the same counters).
+
+        Each part after the first starts from a guessed decoder state (:meth:`StreamDecoder.speculative`).
+        When the part before it ends in that state (up to whole wrap periods, added to the
+        part's times) the part is kept; otherwise it is decoded again from the true state.
+        Falls back to one thread for small files and sources that are not seekable files.
+        """
+        words = None if self.size_bytes is None else self.size_bytes - self.header_size
+        wb = self.decoder.word_bytes
+        if self._file is None or words is None or threads < 2 or words < PARALLEL_MIN_BYTES or self._first:
+            parts = [(list(), list())]
+            for ev, tr in self:
+                parts[0][0].append(ev)
+                parts[0][1].append(tr)
+            return parts[0]
+        fd = self._file.fileno()
+        start = self.header_size
+        cuts = [start + (words // wb * k // threads) * wb for k in range(threads)] + [self.size_bytes]
+        decoders = [self.decoder]
+        for cut in cuts[1:-1]:
+            for words_back in (GUESS_WORDS << k for k in range(0, 9, 2)):  # until a time and a row are known
+                guess_from = max(start, cut - words_back * wb)
+                guess = self.decoder.speculative(os.pread(fd, cut - guess_from, guess_from), cut - start)
+                if guess._guessed[3] and (guess._guessed[6] != 0xFFFF or self.format != "EVT3") or guess_from == start:
+                    break
+            decoders.append(guess)
+        try:
+            with ThreadPoolExecutor(threads - 1, thread_name_prefix="raw-decode") as pool:
+                later = [pool.submit(_decode_span, fd, d, a, b, self.chunk_bytes)
+                         for d, a, b in zip(decoders[1:], cuts[1:-1], cuts[2:])]
+                results = [_decode_span(fd, self.decoder, cuts[0], cuts[1], self.chunk_bytes)]
+                results += [f.result() for f in later]
+            for k in range(1, threads):
+                loops = decoders[k].follows(self.decoder)
+                if loops is None:                    # a wrong guess: the rest in one thread, from the truth
+                    for ev, tr in _iter_span(fd, self.decoder, cuts[k], cuts[-1], self.chunk_bytes):
+                        results[0][0].append(ev)
+                        results[0][1].append(tr)
+                    break
+                _shift(results[k], loops * WRAP_US[self.format] - self.decoder.time_shift_us)
+                self.decoder.absorb(decoders[k], loops)
+                results[0][0].extend(results[k][0])
+                results[0][1].extend(results[k][1])
+            self.decoder.finish()
+        finally:
+            self.close()
+        return results[0]
+
     def close(self) -> None:
         if self._close is not None:
             self._close.close()
@@ -299,6 +406,35 @@ class RawReader:
         where = stats["first_damage_byte"]
         where = "?" if where is None else where + self.header_size
         return f"{self.name}: damaged {self.format} data from byte {where}: {counts}"
+
+
+def _iter_span(fd: int, decoder: StreamDecoder, start: int, stop: int, chunk_bytes: int):
+    """Decoded batches of the file's bytes ``start .. stop`` (read with ``pread``: threads may share ``fd``)."""
+    buf = np.empty(max(1, min(chunk_bytes, stop - start)), np.uint8)
+    pos = start
+    while pos < stop:
+        n = os.preadv(fd, [memoryview(buf)[:min(len(buf), stop - pos)]], pos)
+        if not n:
+            return
+        pos += n
+        yield decoder.decode(buf[:n])
+
+
+def _decode_span(fd: int, decoder: StreamDecoder, start: int, stop: int, chunk_bytes: int):
+    events, triggers = [], []
+    for ev, tr in _iter_span(fd, decoder, start, stop, chunk_bytes):
+        events.append(ev)
+        triggers.append(tr)
+    return events, triggers
+
+
+def _shift(batches, shift_us: int) -> None:
+    """Add ``shift_us`` to the times of a part's ``(events, triggers)`` batches."""
+    if shift_us:
+        for arrays in batches:
+            for a in arrays:
+                if len(a):
+                    a["t"] += shift_us
 
 
 def _header_complete(buf: bytes) -> bool:
