@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +30,7 @@ from capture.gopro import chapter_paths, gpmf, read_video
 from capture.gopro.mp4 import gpmf_samples
 from capture.raw import RawFormatError, RawReader, scan
 from capture.raw.stream import DEFAULT_CHUNK_BYTES
-from capture.session import create_session, open_session, update_session
+from capture.session import StoreBehind, create_session, open_session, update_session
 
 def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool = False,
                 chunk_bytes: int = DEFAULT_CHUNK_BYTES, progress: bool = True) -> dict:
@@ -58,10 +57,9 @@ def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool 
     writer = create_session(session_dir, width=reader.width, height=reader.height,
                             attrs={"sensor": sensor}, overwrite=overwrite)
     try:
-        store = _StoreBehind(writer)
+        store = StoreBehind(writer)
         try:
             summary = scan(reader, store, progress=progress)
-            store.wait()
         finally:
             store.close()
         writer.set_attrs(raw_source={
@@ -71,35 +69,6 @@ def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool 
     finally:
         writer.close()
     return {"session": str(session_dir), **summary, "damage": reader.damage_message()}
-
-
-class _StoreBehind:
-    """``on_batch(events, triggers)`` for :func:`capture.raw.scan` that stores each batch in a
-    thread of its own while the next one is decoded (decoding and compressing then use two
-    cores). One batch is in flight; a store error is raised at the next batch or by :meth:`wait`."""
-
-    def __init__(self, writer):
-        self._writer = writer
-        self._thread = ThreadPoolExecutor(1, thread_name_prefix="ingest-store")
-        self._pending = None
-
-    def _store(self, events, triggers) -> None:
-        self._writer.append_events(events)
-        if len(triggers):
-            self._writer.append_triggers(triggers)
-
-    def __call__(self, events, triggers) -> None:
-        self.wait()
-        self._pending = self._thread.submit(self._store, events, triggers)
-
-    def wait(self) -> None:
-        """Wait for the batch in flight (raising its error, if any)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
-
-    def close(self) -> None:
-        self._thread.shutdown(wait=True)
 
 
 MIN_SYNC_TRIGGERS = 4

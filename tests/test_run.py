@@ -133,3 +133,20 @@ def test_ctrl_c_stops_cleanly(shared_raw_dir, tmp_path):
     # the RAW file holds at least every byte the store's events came from
     assert np.array_equal(raw.read(out / "events.raw").events[:s.n_events], s.events())
     assert "stopped: stop" in stdout
+
+
+def test_live_analysis_gives_way_when_decoding_falls_behind(shared_raw_dir, tmp_path, monkeypatch):
+    """While the RAW file waits to be decoded, live batches are skipped (counted), never stored ones."""
+    from capture.evk.fake import FakeEVK
+    from capture.pipeline import record as rec
+
+    src = shared_raw_dir / TRIGGER_FILE
+    ref = raw.read(src).events
+    for limit, out in ((-1, "behind"), (1 << 40, "never")):
+        monkeypatch.setattr(rec, "LIVE_MAX_BACKLOG_BYTES", limit)
+        result = rec.record_session(rec.RecordSettings(out=tmp_path / out, backend=FakeEVK(src), quiet=True))
+        assert np.array_equal(open_session(tmp_path / out).events(), ref)
+        if limit < 0:
+            assert result.skipped_live_events == len(ref)
+        else:  # offered to the live analysis (which may still skip a batch when its own queue is full)
+            assert result.skipped_live_events < len(ref)

@@ -268,3 +268,73 @@ def test_spin_table_of_an_older_session_reads_missing_uncertainty_as_nan(tmp_pat
     sp = S.open_session(tmp_path / "s").spin()
     assert sp["axis_sigma_deg"].shape == (3,) and np.isnan(sp["axis_sigma_deg"]).all()
     assert np.allclose(sp["rps_sigma_pct"], 0.7) and np.allclose(sp["rps"], 100.0)
+
+
+def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkeypatch):
+    """The store's own chunk encoder and Zarr's write path give stores Zarr reads the same."""
+    ev = _events(2 * S.EVENT_CHUNK + 777, seed=11)
+    cuts = [0, 5, 70_000, S.EVENT_CHUNK - 3, S.EVENT_CHUNK + 9, 2 * S.EVENT_CHUNK + 700, len(ev)]
+    stores = {}
+    for name, ours in (("ours", True), ("zarr", False)):
+        if not ours:
+            monkeypatch.setattr(S._ChunkEncoder, "fits", staticmethod(lambda arr: False))
+        with S.create_session(tmp_path / name, width=640, height=480) as w:
+            assert bool(w._events._encoders) == ours
+            for a, b in zip(cuts, cuts[1:]):  # partly filled chunks, completed by later appends
+                w.append_events(ev[a:b])
+                w.flush()
+            for k in range(3):  # a small table appended through a new table writer each time
+                w.append_track({c: np.arange(k * 4, k * 4 + 4) for c in TRACK_COLUMNS})
+        stores[name] = zarr.open_group(str(tmp_path / name), mode="r")
+    for c in "txyp":
+        mine, theirs = stores["ours"]["events"][c], stores["zarr"]["events"][c]
+        assert mine.shape == theirs.shape == (len(ev),)
+        np.testing.assert_array_equal(mine[:], ev[c])  # also checks each chunk's CRC-32C
+        np.testing.assert_array_equal(mine[:], theirs[:])
+    np.testing.assert_array_equal(stores["ours"]["index"]["ms_to_idx"][:], stores["zarr"]["index"]["ms_to_idx"][:])
+    np.testing.assert_array_equal(S.open_session(tmp_path / "ours").track()["t_us"], np.arange(12))
+    chunk = tmp_path / "ours" / "events" / "t" / "c" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[40] ^= 1
+    chunk.write_bytes(bytes(data))
+    with pytest.raises(S.SessionError, match="events/t"):
+        S.open_session(tmp_path / "ours").events()
+
+
+def test_event_arrays_grow_in_steps_while_recording_and_fit_at_close(tmp_path):
+    ev = _events(300_000, seed=12)
+    w = S.create_session(tmp_path / "s", width=640, height=480)
+    w.append_events(ev)
+    w.flush()
+    g = zarr.open_group(str(tmp_path / "s"), mode="r", use_consolidated=False)
+    assert g["events"]["t"].shape == (S.EVENT_GROW_CHUNKS * S.EVENT_CHUNK,)  # one resize, not one per commit
+    assert np.array_equal(S.open_session(tmp_path / "s").events(), ev)  # readers stop at n_committed
+    w.close()
+    g = zarr.open_group(str(tmp_path / "s"), mode="r", use_consolidated=False)
+    assert g["events"]["t"].shape == (len(ev),)
+
+
+def test_store_behind_stores_every_batch_in_order_and_reports_errors(tmp_path, monkeypatch):
+    ev = _events(50_000, seed=13)
+    tr = make_triggers([100, 200], [0, 1], [1, 0])
+    with S.create_session(tmp_path / "s", width=640, height=480) as w:
+        store = S.StoreBehind(w)
+        for k in range(0, len(ev), 7_000):
+            store(ev[k:k + 7_000], tr[:0] if k else tr)
+        store.close()
+    s = S.open_session(tmp_path / "s")
+    assert np.array_equal(s.events(), ev) and np.array_equal(s.triggers(), tr)
+
+    def full(events):
+        raise OSError(28, "No space left on device")
+    with S.create_session(tmp_path / "f", width=640, height=480) as w:
+        monkeypatch.setattr(w, "append_events", full)
+        store = S.StoreBehind(w)
+        store(ev, tr)
+        with pytest.raises(OSError, match="No space"):
+            store.close()
+        errors = []
+        store = S.StoreBehind(w, on_error=errors.append)
+        store(ev, tr)
+        store.close()
+        assert len(errors) == 1 and errors[0].errno == 28

@@ -40,6 +40,8 @@ class RecordStats:
         EVT3 TIME_HIGH discontinuities (lost data on the link, or idle periods [uncertain]).
     decoder_stats : dict
         The streaming decoder's own counters (damage, time jumps...).
+    decode_backlog_bytes : int
+        Bytes of the RAW file not decoded yet (kept current by the decoder thread while recording).
     n_reads, n_full_reads, n_timeouts : int
         Bulk reads with data, reads that filled the whole buffer (a hint that the device
         side may be overflowing), reads that timed out (idle).
@@ -74,6 +76,7 @@ class RecordStats:
     n_full_reads: int = 0
     n_timeouts: int = 0
     queue_peak_bytes: int = 0
+    decode_backlog_bytes: int = 0
     read_gap_us: float = 0.0
     max_read_gap_us: float = 0.0
     stream_s: float = 0.0
@@ -147,6 +150,7 @@ class _FileDecoder(threading.Thread):
                     end = self._available
                 data = self._file.read(min(end - pos, self.READ_BYTES))
                 pos += len(data)
+                self._stats.decode_backlog_bytes = end - pos
                 events, triggers = self._decoder.decode(data)
                 if len(events) or len(triggers):
                     _count(self._stats, events, triggers)
@@ -159,7 +163,7 @@ class _FileDecoder(threading.Thread):
 
 
 def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = None,
-           max_duration_s: float | None = None) -> RecordStats:
+           max_duration_s: float | None = None, stats: RecordStats | None = None) -> RecordStats:
     """Stream from ``camera`` into a RAW file until stopped; decode it on the fly if asked.
 
     Three threads: the camera's reader thread (started here if the camera is not streaming
@@ -185,6 +189,9 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         Set it (from any thread) to end the recording.
     max_duration_s : float, optional
         Wall-clock limit on streaming, seconds.
+    stats : RecordStats, optional
+        Filled in as the recording goes, for a caller that watches it from another thread
+        (``decode_backlog_bytes``); a new one otherwise.
 
     Returns
     -------
@@ -200,7 +207,9 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         :class:`RecordStats`.
     """
     raw_path = Path(raw_path)
-    stats = RecordStats(raw_path=raw_path)
+    if stats is None:
+        stats = RecordStats(raw_path=raw_path)
+    stats.raw_path = raw_path
     monitor = TimeHighMonitor() if camera.info.format == "EVT3" else None
     header = _header(camera)
     t0, c0 = time.monotonic(), time.process_time()

@@ -90,6 +90,11 @@ class LiveAnalysis:
         except queue.Full:
             self.state.skipped_events += len(events)
 
+    def skip(self, events: np.ndarray) -> None:
+        """Count a batch as skipped without looking at it (the recorder sheds live work when
+        decoding and storing fall behind)."""
+        self.state.skipped_events += len(events)
+
     def close(self, timeout_s: float = 10.0) -> None:
         """Stop the thread after the queued batches (waits at most ``timeout_s``)."""
         if self._thread.is_alive():

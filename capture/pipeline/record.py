@@ -20,11 +20,14 @@ from capture.evk.errors import EvkConnectionError
 from capture.ingest import attach_video
 from capture.pipeline.live import LiveAnalysis
 from capture.review import LiveReview, ReviewError
-from capture.session import create_session, disk_free_bytes, unfinished_session
+from capture.session import StoreBehind, create_session, disk_free_bytes, unfinished_session
 
 RAW_NAME = "events.raw"
 """The exact byte stream from the sensor, with a RAW header, inside the session directory."""
 GOPRO_DIR = "gopro"
+LIVE_MAX_BACKLOG_BYTES = 4 << 20
+"""While more of the RAW file than this waits to be decoded, the live analysis and viewer skip
+batches (counted): decoding and storing catch up first."""
 
 
 class RecorderError(Exception):
@@ -188,13 +191,14 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
 
     camera = evk.open(settings.serial, backend=settings.backend)
     messages: list[str] = []
-    writer = live = review = gopro_media = stats = None
+    writer = store = live = review = gopro_media = stats = None
+    progress = evk.RecordStats(raw_path=out / RAW_NAME)
     counters = {"events": 0, "triggers": 0, "drops": 0}
     write_error: list[BaseException] = []
     raw_error = False
     reason = "error"
     device_error: str | None = None
-    lock = threading.Lock()  # one writer: the decoder thread appends, the status thread flushes
+    lock = threading.Lock()  # one writer: the store thread appends, the status thread flushes
     try:
         info = camera.info
         camera.configure(biases=settings.biases, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
@@ -219,23 +223,25 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                 _log(settings, f"Rerun viewer: {review.url}")
         live = LiveAnalysis(info.width, info.height, review=review)
 
-        def on_batch(events, triggers):
-            with lock:  # after a write error the writer holds what it is given for its close
-                for append, rows in ((writer.append_events, events), (writer.append_triggers, triggers)):
-                    try:
-                        append(rows)
-                    except OSError as exc:  # disk full or gone: stop; what cannot be stored gets marked
-                        _write_failed(exc)
-            counters["events"] += len(events)
-            counters["triggers"] += len(triggers)
-            live.offer(events)
-            if review is not None:
-                review.log_events(events)
-
-        def _write_failed(exc: OSError) -> None:
+        def _write_failed(exc: OSError) -> None:  # disk full or gone: stop; what cannot be stored gets marked
             if not write_error:
                 write_error.append(exc)
             stop.set()
+
+        # stored in a thread of its own while the next batch decodes (after a write error the
+        # writer holds what it is given, for its close)
+        store = StoreBehind(writer, lock=lock, on_error=_write_failed)
+
+        def on_batch(events, triggers):
+            store(events, triggers)
+            counters["events"] += len(events)
+            counters["triggers"] += len(triggers)
+            if progress.decode_backlog_bytes > LIVE_MAX_BACKLOG_BYTES:
+                live.skip(events)  # decoding and storing are behind: they come first
+                return
+            live.offer(events)
+            if review is not None:
+                review.log_events(events)
 
         if settings.gopro is not None:
             gopro_media = _gopro_start(settings, messages)
@@ -245,7 +251,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
         _log(settings, f"Recording {info.board} {info.sensor} {info.width}x{info.height} "
                        f"(serial {info.serial}) into {out}; Ctrl-C stops")
         try:
-            stats = evk.record(camera, out / RAW_NAME, on_batch=on_batch, stop=stop,
+            stats = evk.record(camera, out / RAW_NAME, on_batch=on_batch, stop=stop, stats=progress,
                                max_duration_s=settings.max_duration_s)
             reason = stats.stop_reason
         except EvkConnectionError as exc:  # unplugged, stalled...: keep and finalise everything
@@ -273,6 +279,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                 messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
                                 "(lost data on the link, or idle periods)")
     finally:
+        if store is not None:
+            store.close()
         store_error = _finalise(writer, live, review, stats, reason, lock, messages,
                                 raw_write_error=str(write_error[0]) if raw_error else None)
         camera.close()
