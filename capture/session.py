@@ -39,6 +39,7 @@ Nothing is lost silently:
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import datetime as _dt
 import errno
@@ -343,7 +344,8 @@ class SessionWriter:
         self._buffer: list[np.ndarray] = []
         self._buffered = 0
         self._pending_triggers: list[np.ndarray] = []
-        self._pending_index: list[tuple[int, np.ndarray]] = []
+        self._pending_index: list[np.ndarray] = []  # ms-index entries not written yet
+        self._n_pending_index = 0
         self._last_flush = time.monotonic()
         self._committed_last_t = None
         if self._events.n:
@@ -442,20 +444,26 @@ class SessionWriter:
         self._buffered = len(tail)
         if len(head):
             self._committed_last_t = int(head["t"][-1])
-            self._pending_index.append((n0, head["t"]))
-        self._extend_index()
+            self._index_entries(n0, head["t"])
+
+    def _index_entries(self, n0: int, t_new: np.ndarray) -> None:
+        """The ms-index entries that events ``n0..`` (times ``t_new``, µs) make final, kept until
+        :meth:`_extend_index` writes them (the origin and counts are kept here: a failed write may
+        leave others in the group's cached metadata)."""
+        if self._t0_ms is None:
+            self._t0_ms = int(t_new[0] // 1000)
+        ms = np.arange(self._t0_ms + self._index.n + self._n_pending_index, int(t_new[-1] // 1000) + 1,
+                       dtype=np.int64)
+        if len(ms):
+            self._pending_index.append(n0 + np.searchsorted(t_new, ms * 1000, side="left"))
+            self._n_pending_index += len(ms)
 
     def _extend_index(self) -> None:
-        """Add the ms-index entries that the committed events make final (the committed count
-        and origin are kept here: a failed write may leave others in the group's cached metadata)."""
-        while self._pending_index:
-            n0, t_new = self._pending_index[0]
-            t0_ms = self._t0_ms if self._t0_ms is not None else int(t_new[0] // 1000)
-            ms = np.arange(t0_ms + self._index.n, int(t_new[-1] // 1000) + 1, dtype=np.int64)
-            if len(ms):
-                self._index.append({"ms_to_idx": n0 + np.searchsorted(t_new, ms * 1000, side="left")}, t0_ms=t0_ms)
-                self._t0_ms = t0_ms
-            self._pending_index.pop(0)
+        """Write the pending ms-index entries. Done at each flush, not at each chunk of events:
+        a reader finds the events after the index's last entry by their times."""
+        if self._pending_index:
+            self._index.append({"ms_to_idx": np.concatenate(self._pending_index)}, t0_ms=self._t0_ms)
+            self._pending_index, self._n_pending_index = [], 0
 
     def append_triggers(self, triggers: np.ndarray) -> None:
         """Append and commit TRIGGER_DTYPE events (held, like events, after a write error)."""
@@ -586,6 +594,7 @@ class SessionWriter:
         """Commit the held events a piece at a time (as many as the disk takes)."""
         while self._buffered:
             self._write_events(min(piece, self._buffered))
+        self._extend_index()
 
     def _release_reserve(self) -> None:
         if self._reserve is not None:
@@ -601,9 +610,9 @@ class SessionWriter:
 
 class StoreBehind:
     """Appends ``(events, triggers)`` batches to a :class:`SessionWriter` in a thread of its own,
-    so that the caller decodes the next batch meanwhile (decoding and compressing then run on
-    two cores). One batch is in flight: memory stays bounded and the store at most one batch
-    behind its caller.
+    so that the caller decodes the next batches meanwhile (decoding and compressing then run on
+    two cores). At most ``depth`` batches wait: memory stays bounded, and a slow commit (a
+    metadata write, a partly filled chunk written again) does not stall the caller.
 
     Parameters
     ----------
@@ -612,16 +621,19 @@ class StoreBehind:
         Held around each append (shared with a thread that commits the writer on a schedule).
     on_error : callable, optional
         Called with the OSError of a failed append (disk full); the writer then holds what it is
-        given (see :meth:`SessionWriter.append_events`). Without it the error is raised by the
-        next call or by :meth:`wait`.
+        given (see :meth:`SessionWriter.append_events`). Without it the error is raised by a
+        later call or by :meth:`close`.
+    depth : int
+        Batches in flight at most.
     """
 
-    def __init__(self, writer: SessionWriter, lock=None, on_error=None):
+    def __init__(self, writer: SessionWriter, lock=None, on_error=None, depth: int = 4):
         self._writer = writer
         self._lock = lock if lock is not None else contextlib.nullcontext()
         self._on_error = on_error
+        self._depth = max(1, depth)
         self._thread = ThreadPoolExecutor(1, thread_name_prefix="session-behind")
-        self._pending = None
+        self._pending: collections.deque = collections.deque()
 
     def _store(self, events: np.ndarray, triggers: np.ndarray) -> None:
         with self._lock:
@@ -634,21 +646,18 @@ class StoreBehind:
                     self._on_error(exc)
 
     def __call__(self, events: np.ndarray, triggers: np.ndarray) -> None:
-        """Store a batch (after the one in flight is stored)."""
-        self.wait()
-        self._pending = self._thread.submit(self._store, events, triggers)
-
-    def wait(self) -> None:
-        """Wait until the batch in flight is stored (raising its error, without ``on_error``)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
+        """Queue a batch (waiting while ``depth`` batches are in flight)."""
+        while len(self._pending) >= self._depth:
+            self._pending.popleft().result()
+        self._pending.append(self._thread.submit(self._store, events, triggers))
 
     def close(self) -> None:
-        """Wait for the batch in flight, then end the thread."""
+        """Wait until every batch is stored (raising the first error, without ``on_error``), then end the thread."""
         try:
-            self.wait()
+            while self._pending:
+                self._pending.popleft().result()
         finally:
+            self._pending.clear()
             self._thread.shutdown(wait=True)
 
 

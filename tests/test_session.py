@@ -338,3 +338,46 @@ def test_store_behind_stores_every_batch_in_order_and_reports_errors(tmp_path, m
         store(ev, tr)
         store.close()
         assert len(errors) == 1 and errors[0].errno == 28
+
+
+def test_events_committed_ahead_of_the_ms_index_are_found_by_time(tmp_path):
+    """Whole chunks are committed as they fill; the ms index follows at each flush. A reader in
+    between finds the events past the index's last entry by their times."""
+    ev = _events(2 * S.EVENT_CHUNK + 5, seed=14)
+    w = S.create_session(tmp_path / "s", width=640, height=480, flush_interval_s=3600)
+    w.append_events(ev[:1000])
+    w.flush()  # the index now covers the first 1000 events only
+    w.append_events(ev[1000:])  # two whole chunks committed, their index entries pending
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == 2 * S.EVENT_CHUNK and s._n("index") < int(ev["t"][-1] // 1000) - int(ev["t"][0] // 1000)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        a, b = np.sort(rng.integers(0, int(ev["t"][-1]), 2))
+        assert np.array_equal(s.events(a, b), time_slice(ev[:s.n_events], a, b))
+    w.close()
+    s = S.open_session(tmp_path / "s")
+    ms = s.root["index"]["ms_to_idx"][:]
+    k = np.arange(len(ms))
+    assert np.array_equal(ms, np.searchsorted(ev["t"], (s.root["index"].attrs["t0_ms"] + k) * 1000))
+
+
+def test_store_behind_holds_at_most_depth_batches(tmp_path, monkeypatch):
+    import threading
+
+    release = threading.Event()
+    stored = []
+    with S.create_session(tmp_path / "s", width=640, height=480) as w:
+        def slow(events):
+            release.wait(10)
+            stored.append(len(events))
+        monkeypatch.setattr(w, "append_events", slow)
+        store = S.StoreBehind(w, depth=2)
+        ev = _events(10, seed=15)
+        calls = threading.Thread(target=lambda: [store(ev, make_triggers([], [], [])) for _ in range(4)])
+        calls.start()
+        calls.join(0.5)
+        assert calls.is_alive()  # the third batch waits: two in flight (one being stored), no more
+        release.set()
+        calls.join(10)
+        store.close()
+    assert stored == [10] * 4
