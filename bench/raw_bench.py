@@ -124,7 +124,7 @@ def main() -> None:
     args = parser.parse_args()
     peers = _peers()
     print(f"peers: {', '.join(peers) or 'none'}; best of {args.repeat} (evlib: fewer); ours: "
-          f"{min(os.cpu_count() or 1, raw.files.MAX_THREADS)} threads from {raw.stream.PARALLEL_MIN_BYTES >> 20} MiB of words")
+          f"{min(os.cpu_count() or 1, raw.stream.MAX_THREADS)} threads from {raw.stream.PARALLEL_MIN_BYTES >> 20} MiB of words")
     for path in sorted(args.shared.glob("*.raw")):
         report(path.name, bench_file(path, args.repeat, peers))
     if not args.no_synthetic:

@@ -16,7 +16,7 @@ from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
-from capture.raw.stream import DEFAULT_CHUNK_BYTES, WRAP_US, RawReader
+from capture.raw.stream import DEFAULT_CHUNK_BYTES, MAX_THREADS, WRAP_US, RawReader
 
 
 @dataclass
@@ -51,10 +51,6 @@ class RawFile:
     time_shift_us: int = 0
 
 
-MAX_THREADS = 4
-"""Most threads :func:`read` uses by default."""
-
-
 def read(path, *, time_shift: bool = False, strict: bool = False, format: str | None = None,
          width: int | None = None, height: int | None = None,
          chunk_bytes: int = DEFAULT_CHUNK_BYTES, threads: int | None = None) -> RawFile:
@@ -74,7 +70,7 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
         Bytes decoded per batch (bounds the temporaries, not the result).
     threads : int, optional
         Parts of the file decoded at once (default: the machine's cores, at most 4); the
-        result is the same for any number (see :meth:`capture.raw.RawReader.decode_all`).
+        result is the same for any number (see :class:`capture.raw.RawReader`).
 
     Raises
     ------
@@ -90,14 +86,17 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
         Damage was found (truncated word, words before any ADDR_Y, unknown words, events
         outside the sensor...); everything decodable was kept.
     """
+    if threads is None:
+        threads = min(os.cpu_count() or 1, MAX_THREADS)
     reader = RawReader(path, chunk_bytes=chunk_bytes, format=format, width=width, height=height,
-                       time_shift=time_shift)
+                       time_shift=time_shift, threads=threads)
     if reader.width is None or reader.height is None:
         reader.close()
         raise RawFormatError(f"{path}: the header gives no sensor geometry; pass width= and height=")
-    if threads is None:
-        threads = min(os.cpu_count() or 1, MAX_THREADS)
-    ev_parts, tr_parts = reader.decode_all(threads)
+    ev_parts, tr_parts = [], []
+    for events, triggers in reader:
+        ev_parts.append(events)
+        tr_parts.append(triggers)
     message = reader.damage_message()
     if message:
         if strict:
