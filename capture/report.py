@@ -14,7 +14,8 @@ import sys
 import numpy as np
 
 from capture.cliargs import run_command
-from capture.pipeline.replay import session_results
+from capture.pipeline.replay import session_results, stored_ball_diameter_m
+from capture.session import open_session
 from capture.results import BALL_DIAMETER_M, format_flight_table, write_csv, write_parquet
 
 PROG = "python -m capture.report"
@@ -25,6 +26,13 @@ def add_ball_args(ap: argparse.ArgumentParser) -> None:
     ball = ap.add_mutually_exclusive_group()
     ball.add_argument("--ball", choices=sorted(BALL_DIAMETER_M), help="the ball, for distances and speeds")
     ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
+
+
+def ball_attr(args) -> dict | None:
+    """The session attribute ``ball`` (``{"type": preset or None, "diameter_m": m}``) from the
+    arguments of :func:`add_ball_args`, or None when neither is given."""
+    diameter = ball_diameter_m(args)
+    return None if diameter is None else {"type": args.ball, "diameter_m": diameter}
 
 
 def ball_diameter_m(args) -> float | None:
@@ -58,8 +66,9 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> None:
-    diameter = ball_diameter_m(args)
-    flights, windows = session_results(args.session, ball_diameter_m=diameter)
+    session = open_session(args.session)
+    diameter = ball_diameter_m(args) or stored_ball_diameter_m(session)
+    flights, windows = session_results(session, ball_diameter_m=diameter)
     print(format_flight_table(flights))
     if diameter and len(flights["flight"]) and np.isnan(flights["speed_m_s"].astype(float)).all():
         print("note: no calibration of the event camera in the session: no distances or speeds")

@@ -29,8 +29,9 @@ from pathlib import Path
 from capture.cliargs import box, flicker_band, name_int, run_command
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
-from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
-from capture.results import flight_table, format_flight_table
+from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay, session_results
+from capture.report import add_ball_args, ball_attr
+from capture.results import format_flight_table
 
 PROG = "python -m capture.run"
 
@@ -67,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="GoPro shutter time in seconds when locked, e.g. 0.002 (default: estimated)")
     ap.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
                     help="sync-box LED region in GoPro pixels (default: found automatically)")
+    add_ball_args(ap)
     ap.add_argument("--no-analysis", action="store_true", help="skip the offline analysis at the end")
     ap.add_argument("--quiet", action="store_true", help="no status line or progress bars")
     return ap
@@ -129,9 +131,11 @@ def _devices(args, out: Path):
         with demo_devices(out, viewer=args.viewer, speed=args.speed, quiet=args.quiet) as (settings, truth):
             yield settings, truth
         return
+    ball = ball_attr(args)
     settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=biases_of(args.bias_file, args.bias),
                               roi=args.roi, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
-                              exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet)
+                              exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet,
+                              attrs={"ball": ball} if ball else {})
     if args.fake:
         from capture.evk.fake import FakeEVK
 
@@ -155,7 +159,7 @@ def print_summary(result: RecordResult, analysis: ReplayResult | None = None) ->
     if analysis is not None:
         print(f"  {len(analysis.track)} track rows, {len(analysis.spin['rps'])} spin estimates; "
               f"review: {analysis.rrd_path} (open with: rerun {analysis.rrd_path})")
-        print(format_flight_table(flight_table(analysis.track, analysis.spin)))
+        print(format_flight_table(session_results(result.session)[0]))
 
 
 def print_truth_comparison(analysis: ReplayResult, truth: dict) -> None:

@@ -160,6 +160,13 @@ def test_report_cli_prints_the_table_and_refuses_an_unanalysed_session(tmp_path,
     assert pd.read_csv(tmp_path / "f.csv")["n_trusted"][0] == 8
     assert len(pd.read_parquet(tmp_path / "w.parquet")) == 8
     assert report_main([str(path), "--ball-diameter", "-1"]) == 1
+    capsys.readouterr()
+    assert report_main([str(path)]) == 0
+    assert "no calibration" not in capsys.readouterr().out  # no ball: no distances asked for
+    with update_session(path) as w:
+        w.set_attrs(ball={"type": "volleyball", "diameter_m": 0.21})  # as capture.run --ball records it
+    assert report_main([str(path)]) == 0
+    assert "no calibration" in capsys.readouterr().out  # the recorded ball asks for distances and speeds
 
 
 def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_path):
@@ -190,3 +197,24 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
     assert flights["rpm"][0] == pytest.approx(1200.0, rel=0.03)
     assert f"<td>{flights['rpm'][0]:.0f}</td>" in doc and f"<td>{flights['tilt'][0]}</td>" in doc
     assert "Flight 0" in doc
+
+
+def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path):
+    """``capture.run --ball`` stores the ball; with the event camera's calibration the session's
+    tables then have distances and speeds without asking again (an explicit diameter wins)."""
+    from calib import CameraPair, Intrinsics, store_calibration
+    from capture.pipeline.replay import session_results
+    from capture.session import update_session
+
+    path, v = tmp_path / "s", (1000, 0)
+    event = Intrinsics(K=np.diag([1000.0, 1000.0, 1.0]), dist=np.zeros(5), width=480, height=320)
+    with create_session(path, width=480, height=320) as w:
+        store_calibration(w, cameras=CameraPair(frame=event, event=event, homography=np.eye(3)))
+        w.write_track(_track(v, r=21.0))
+        w.write_spin(_spin((0, 0, -1), 30.0, v))
+    assert np.isnan(session_results(path)[0]["speed_m_s"][0])  # no ball known
+    with update_session(path) as w:
+        w.set_attrs(ball={"type": "volleyball", "diameter_m": 0.21})
+    flights = session_results(path)[0]
+    assert flights["distance_m"][0] == pytest.approx(5.0) and flights["speed_m_s"][0] == pytest.approx(5.0)
+    assert session_results(path, ball_diameter_m=0.42)[0]["distance_m"][0] == pytest.approx(10.0)

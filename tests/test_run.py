@@ -21,11 +21,12 @@ def test_fake_recording_keeps_every_event_and_byte(shared_raw_dir, tmp_path):
     src = shared_raw_dir / TRIGGER_FILE
     out = tmp_path / "session"
     rc = run_main(["--fake", str(src), "--speed", "max", "--out", str(out), "--viewer", "none",
-                   "--no-analysis", "--quiet"])
+                   "--no-analysis", "--quiet", "--ball", "tennis"])
     assert rc == 0
     ref = raw.read(src)
     s = open_session(out)
     assert s.attrs["closed"] and s.attrs["recording"]["stop_reason"] == "end_of_stream"
+    assert s.attrs["ball"] == {"type": "tennis", "diameter_m": 0.067}  # for the report's distances and speeds
     assert np.array_equal(s.events(), ref.events)
     assert np.array_equal(s.triggers(), ref.triggers)
     # the session keeps the exact byte stream behind a RAW header

@@ -22,6 +22,7 @@ import sim
 from capture.evk.fake import FakeEVK
 from capture.gopro import FakeGoPro, GoPro
 from capture.pipeline.record import RecordSettings
+from capture.results import BALL_DIAMETER_M
 
 DEMO_SPIN = {"rps": 30.0, "axis": (0.0, 0.0, -1.0)}
 """Spin of the demo ball: 30 rev/s of topspin for a ball flying to the right (+x)."""
@@ -59,7 +60,8 @@ def demo_devices(out, *, viewer: str = "none", speed: str = "recorded", quiet: b
                 gopro=GoPro(host=fake_gopro.host, port=fake_gopro.port),
                 gopro_settings={"resolution": "1080", "fps": 120},
                 led_roi=tuple(truth["sync"]["led_box_px"]),  # the exposure comes from the video's GPMF
-                attrs={"demo": {"truth_rps": float(truth["rps"]),
+                attrs={"ball": {"type": "volleyball", "diameter_m": BALL_DIAMETER_M["volleyball"]},
+                       "demo": {"truth_rps": float(truth["rps"]),
                                 "truth_axis": [float(v) for v in truth["axis"]],
                                 "truth_frame_t_us": [int(v) for v in truth["frames"]["t_us"]]}})
             yield settings, truth

@@ -465,6 +465,14 @@ def store_results(session_path, track: Track, spin_columns: dict, options: Repla
     writer.close(analysis=analysis_stamp(options))
 
 
+def stored_ball_diameter_m(session) -> float | None:
+    """The ball's diameter (m) recorded with a session (attrs ``ball``, written by
+    ``capture.run --ball/--ball-diameter``), or None."""
+    ball = session.attrs.get("ball")
+    d = ball.get("diameter_m") if isinstance(ball, dict) else None
+    return float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 else None
+
+
 def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
     """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
 
@@ -472,6 +480,9 @@ def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[d
     ----------
     session : path or capture.session.Session
         The session's directory, or the session already open.
+    ball_diameter_m : float, optional
+        The ball's diameter, m (default: the one recorded with the session, if any), for the
+        distance and speed columns (with the event camera's calibration).
 
     Raises
     ------
@@ -483,6 +494,8 @@ def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[d
     if len(track) == 0 and "track" not in s.root:
         raise ValueError(f"{s.path}: not analysed yet (no ball track); run: python -m capture.replay {s.path}")
     spin_columns = s.spin()
+    if ball_diameter_m is None:
+        ball_diameter_m = stored_ball_diameter_m(s)
     camera = event_camera(s) if ball_diameter_m else None
     flights = flight_table(track, spin_columns, focal_px=camera.focal_px if camera is not None else None,
                            ball_diameter_m=ball_diameter_m)
