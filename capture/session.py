@@ -341,11 +341,12 @@ class SessionWriter:
         self._triggers = _Table(_table_group(root, "triggers"), _TRIGGER_COLUMNS, TABLE_CHUNK)
         self._index = _Table(_table_group(root, "index"), _INDEX_COLUMNS, TABLE_CHUNK, grow_chunks=1)
         self._t0_ms = self._index.group.attrs.get("t0_ms")
+        self._pending_index: list[np.ndarray] = []  # ms-index entries not written yet
+        self._n_pending_index = 0
+        self._index_committed()
         self._buffer: list[np.ndarray] = []
         self._buffered = 0
         self._pending_triggers: list[np.ndarray] = []
-        self._pending_index: list[np.ndarray] = []  # ms-index entries not written yet
-        self._n_pending_index = 0
         self._last_flush = time.monotonic()
         self._committed_last_t = None
         if self._events.n:
@@ -457,6 +458,15 @@ class SessionWriter:
         if len(ms):
             self._pending_index.append(n0 + np.searchsorted(t_new, ms * 1000, side="left"))
             self._n_pending_index += len(ms)
+
+    def _index_committed(self) -> None:
+        """The ms-index entries of committed events that the index lacks (a writer killed between
+        a chunk's commit and the next flush), computed when the session is opened again."""
+        n, k = self._events.n, self._index.n
+        if n == 0:
+            return
+        start = int(self._index.arrays["ms_to_idx"][k - 1]) if k else 0
+        self._index_entries(start, np.asarray(self._events.arrays["t"][start:n]))
 
     def _extend_index(self) -> None:
         """Write the pending ms-index entries. Done at each flush, not at each chunk of events:

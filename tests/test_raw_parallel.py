@@ -133,3 +133,16 @@ def test_streamed_batches_are_those_of_one_thread(small_parts, shared_raw_dir):
     for a, b in ((one, many),):
         np.testing.assert_array_equal(np.concatenate([e for e, _ in a]), np.concatenate([e for e, _ in b]))
     assert sum(len(e) for e, _ in many) == sum(len(e) for e, _ in one) > 0
+
+
+def test_time_shift_from_a_first_time_high_in_a_later_part(tmp_path, small_parts):
+    """Words without time (OTHERS) fill the first parts: the shift comes from a later part's
+    first TIME_HIGH, and every part is shifted by it."""
+    n = 20_000
+    ev = make_events(5_000_000 + np.arange(n) * 7, np.arange(n) % 640, np.full(n, 3), np.arange(n) % 2)
+    path = tmp_path / "late_time.raw"
+    path.write_bytes(raw.header_bytes("EVT3", width=640, height=480) + np.full(60_000, 0xE000, "<u2").tobytes()
+                     + raw.encode(ev, format="EVT3", width=640, height=480))
+    for threads in (2, 4, 7):
+        one = _same(path, threads, time_shift=True)
+    assert one.time_shift_us > 0 and one.events["t"][0] == 5_000_000 - one.time_shift_us

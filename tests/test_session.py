@@ -381,3 +381,24 @@ def test_store_behind_holds_at_most_depth_batches(tmp_path, monkeypatch):
         calls.join(10)
         store.close()
     assert stored == [10] * 4
+
+
+def test_a_reopened_session_indexes_what_was_committed_after_the_last_flush(tmp_path):
+    """A writer killed between a chunk's commit and the next flush leaves events the ms index
+    lacks; the writer of the reopened session adds their entries before its own."""
+    ev = _events(2 * S.EVENT_CHUNK + 10, seed=16, t_max=3_000_000)
+    w = S.create_session(tmp_path / "s", width=640, height=480, flush_interval_s=3600)
+    w.append_events(ev[:S.EVENT_CHUNK + 5])
+    w.flush()
+    w.append_events(ev[S.EVENT_CHUNK + 5:])  # a second chunk committed, its index entries not written
+    del w  # killed: no flush, no close
+    n = S.open_session(tmp_path / "s").n_events
+    later = make_events(np.arange(3_000_000, 3_500_000, 10), np.zeros(50_000, int), np.zeros(50_000, int),
+                        np.zeros(50_000, int))
+    with S.update_session(tmp_path / "s") as w:
+        w.append_events(later)
+    s = S.open_session(tmp_path / "s")
+    every = np.concatenate([ev[:n], later])
+    assert np.array_equal(s.events(), every)
+    for a in range(0, 3_500_000, 70_001):
+        assert np.array_equal(s.events(a, a + 20_000), time_slice(every, a, a + 20_000))

@@ -189,6 +189,8 @@ class StreamDecoder:
         if other.first_damage_word is not None and st.first_damage_word is None:
             st.first_damage_word = other.first_damage_word
         shift = loops * WRAP_US[self.format]
+        if st.first_th is None:  # the stream's first TIME_HIGH was in the later part (time shift)
+            st.first_th = other.first_th
         st.loops, st.t_us, st.t_max = other.loops + loops, other.t_us + shift, other.t_max + shift
         st.started, st.th_raw, st.tl, st.y, st.base_x, st.base_pol = (
             other.started, other.th_raw, other.tl, other.y, other.base_x, other.base_pol)
@@ -401,8 +403,8 @@ class RawReader:
             if loops is None:  # a wrong guess: the rest of the window in one thread, from the truth
                 batches += list(_iter_span(fd, self.decoder, cuts[k], stop, self.chunk_bytes))
                 break
-            _shift(part, loops * WRAP_US[self.format] - self.decoder.time_shift_us)
             self.decoder.absorb(decoders[k], loops)
+            _shift(part, loops * WRAP_US[self.format] - self.decoder.time_shift_us)
             batches += part
         return batches
 
