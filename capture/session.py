@@ -286,13 +286,10 @@ class _Table:
         if head is None or len(head) != self.n - first * rows:  # not kept (a table opened again)
             head = arr[first * rows:self.n]
         data = np.concatenate((head, values)) if len(head) else values
-        block = np.zeros((rows, *arr.shape[1:]), arr.dtype)
         for c in range(-(-len(data) // rows)):
             piece = data[c * rows:(c + 1) * rows]
-            if len(piece) < rows:
-                block[:len(piece)] = piece
-                block[len(piece):] = 0
-                piece = block
+            if len(piece) < rows:  # the last chunk, partly filled: padded with the fill value
+                piece = np.concatenate((piece, np.zeros((rows - len(piece), *arr.shape[1:]), arr.dtype)))
             self._encoders[name].put(first + c, piece)
         return data[len(data) // rows * rows:].copy()
 

@@ -381,19 +381,21 @@ class RawReader:
                 yield from self._decode_window(fd, pool, pos, end, wb)
                 pos = end
 
+    def _guess(self, fd: int, cut: int, wb: int) -> StreamDecoder:
+        """A speculative decoder for the bytes from ``cut`` on, from the words before it: 4x more
+        of them while the guess knows no time yet (or, in EVT3, no row)."""
+        for words_back in (GUESS_WORDS << k for k in range(0, 9, 2)):
+            guess_from = max(self.header_size, cut - words_back * wb)
+            guess = self.decoder.speculative(os.pread(fd, cut - guess_from, guess_from), cut - self.header_size)
+            st = guess._state
+            if st.started and (st.y != 0xFFFF or self.format != "EVT3") or guess_from == self.header_size:
+                break
+        return guess
+
     def _decode_window(self, fd: int, pool: ThreadPoolExecutor, start: int, stop: int, wb: int) -> list:
         n_words = (stop - start) // wb
         cuts = [start + (n_words * k // self.threads) * wb for k in range(self.threads)] + [stop]
-        decoders = [self.decoder]
-        for cut in cuts[1:-1]:
-            for words_back in (GUESS_WORDS << k for k in range(0, 9, 2)):  # until a time and a row are known
-                guess_from = max(self.header_size, cut - words_back * wb)
-                guess = self.decoder.speculative(os.pread(fd, cut - guess_from, guess_from),
-                                                 cut - self.header_size)
-                if guess._guessed[3] and (guess._guessed[6] != 0xFFFF or self.format != "EVT3") \
-                        or guess_from == self.header_size:
-                    break
-            decoders.append(guess)
+        decoders = [self.decoder] + [self._guess(fd, cut, wb) for cut in cuts[1:-1]]
         later = [pool.submit(_decode_span, fd, d, a, b, self.chunk_bytes)
                  for d, a, b in zip(decoders[1:], cuts[1:-1], cuts[2:])]
         batches = _decode_span(fd, self.decoder, cuts[0], cuts[1], self.chunk_bytes)
