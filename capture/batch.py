@@ -19,10 +19,9 @@ import os
 import sys
 from pathlib import Path
 
-from capture.cliargs import positive_int, run_command
+from capture.cliargs import add_ball_args, ball_diameter_m, positive_int, run_command
 from capture.pipeline.batch import OneThreadPerWorker, local_cluster, run_batch
 from capture.replay import add_spin_args, spin_options
-from capture.report import add_ball_args, ball_diameter_m
 from capture.results import write_parquet
 
 PROG = "python -m capture.batch"

@@ -20,6 +20,8 @@ import argparse
 import sys
 from collections.abc import Callable
 
+from capture.results import BALL_DIAMETER_M
+
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
 
@@ -72,6 +74,33 @@ def positive_int(text: str) -> int:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {value}")
     return value
+
+
+def add_ball_args(ap: argparse.ArgumentParser) -> None:
+    """``--ball`` (a preset) or ``--ball-diameter`` (metres); :func:`ball_diameter_m` reads them back."""
+    ball = ap.add_mutually_exclusive_group()
+    ball.add_argument("--ball", choices=sorted(BALL_DIAMETER_M), help="the ball, for distances and speeds")
+    ball.add_argument("--ball-diameter", type=float, metavar="M", help="the ball's diameter in metres")
+
+
+def ball_attr(args) -> dict | None:
+    """The session attribute ``ball`` (``{"type": preset or None, "diameter_m": m}``) from the
+    arguments of :func:`add_ball_args`, or None when neither is given."""
+    diameter = ball_diameter_m(args)
+    return None if diameter is None else {"type": args.ball, "diameter_m": diameter}
+
+
+def ball_diameter_m(args) -> float | None:
+    """The ball's diameter (m) from the arguments of :func:`add_ball_args`, or None when neither is given.
+
+    Raises
+    ------
+    ValueError
+        ``--ball-diameter`` is not positive.
+    """
+    if args.ball_diameter is not None and not args.ball_diameter > 0:
+        raise ValueError(f"--ball-diameter must be positive, got {args.ball_diameter}")
+    return args.ball_diameter or (BALL_DIAMETER_M[args.ball] if args.ball else None)
 
 
 def print_fields(d: dict) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import store, sync
-from capture.cliargs import box, print_fields, run_command
+from capture.cliargs import add_ball_args, ball_attr, box, print_fields, run_command
 from capture.gopro import chapter_paths, gpmf, read_video
 from capture.gopro.mp4 import gpmf_samples
 from capture.raw import RawFormatError, RawReader, scan
@@ -33,11 +33,12 @@ from capture.raw.stream import DEFAULT_CHUNK_BYTES
 from capture.session import StoreBehind, create_session, open_session, update_session
 
 def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool = False,
-                chunk_bytes: int = DEFAULT_CHUNK_BYTES, progress: bool = True) -> dict:
+                chunk_bytes: int = DEFAULT_CHUNK_BYTES, progress: bool = True, ball: dict | None = None) -> dict:
     """Decode a RAW file into a new session store (events, triggers; header in the root attrs).
 
     Root attrs written: ``sensor`` (format, geometry, serial, plugin, header fields),
-    ``raw_source`` (file name, size, header style, time shift, decoder counters).
+    ``raw_source`` (file name, size, header style, time shift, decoder counters) and, when
+    given, ``ball`` (``{"type", "diameter_m"}``, see :func:`capture.cliargs.ball_attr`).
 
     Returns
     -------
@@ -55,7 +56,7 @@ def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool 
               "plugin_name": fields.get("plugin_name"), "system_ID": fields.get("system_ID"),
               "raw_header": dict(fields)}
     writer = create_session(session_dir, width=reader.width, height=reader.height,
-                            attrs={"sensor": sensor}, overwrite=overwrite)
+                            attrs={"sensor": sensor, **({"ball": ball} if ball else {})}, overwrite=overwrite)
     try:
         store = StoreBehind(writer)
         try:
@@ -169,12 +170,13 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
 
 
 def session_from_raw(raw_path, session_dir, mp4_path=None, *, progress: bool = True, led_roi=None,
-                     exposure_s: float | None = None) -> tuple[Path, str | None]:
-    """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session.
+                     exposure_s: float | None = None, ball: dict | None = None) -> tuple[Path, str | None]:
+    """Convert a RAW file (and optionally its MP4, aligned to the event clock) into a new session,
+    with the ``ball`` it records (see :func:`convert_raw`).
 
     Returns the session directory and the video's one-line alignment note (None without video).
     """
-    convert_raw(raw_path, session_dir, progress=progress)
+    convert_raw(raw_path, session_dir, progress=progress, ball=ball)
     note = None
     if mp4_path is not None:
         note = attach_video(session_dir, mp4_path, led_roi=led_roi, exposure_s=exposure_s)
@@ -192,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="subtract Metavision's default time shift (default: sensor time)")
     p_raw.add_argument("--overwrite", action="store_true", help="replace an existing session store")
     p_raw.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_ball_args(p_raw)
     p_video = sub.add_parser("video", help="attach a GoPro MP4 to a session, aligned to the event clock")
     p_video.add_argument("session_dir")
     p_video.add_argument("mp4")
@@ -209,7 +212,7 @@ def main(argv=None) -> int:
     def body():
         if args.command == "raw":
             print_fields(convert_raw(args.file, args.session_dir, time_shift=args.time_shift,
-                                     overwrite=args.overwrite, progress=not args.quiet))
+                                     overwrite=args.overwrite, progress=not args.quiet, ball=ball_attr(args)))
         else:
             print(attach_video(args.session_dir, args.mp4, led_roi=args.led_roi, exposure_s=args.exposure))
 

@@ -10,11 +10,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.cliargs import box, positive_int, run_command
+from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_command
 from capture.ingest import session_from_raw
-from capture.pipeline.replay import ReplayOptions, replay
-from capture.results import flight_table, format_flight_table
-from capture.session import open_session
+from capture.pipeline.replay import ReplayOptions, replay, session_results
+from capture.results import format_flight_table
+from capture.session import open_session, update_session
 
 PROG = "python -m capture.replay"
 
@@ -46,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="video shutter time in seconds when locked (default: estimated)")
     ap.add_argument("--out", help="session directory to create from a RAW file (default: next to it)")
     ap.add_argument("--rrd", help="write a Rerun recording here")
+    add_ball_args(ap)
     add_spin_args(ap)
     ap.add_argument("--workers", type=positive_int, default=ReplayOptions.workers,
                     help="processes in all, this one included (spin runs in the others while this one tracks)")
@@ -60,17 +61,21 @@ def main(argv=None) -> int:
 
 def _run(args) -> None:
     progress = not args.quiet
+    ball = ball_attr(args)
     src = Path(args.source)
     if not src.exists():
         raise FileNotFoundError(f"{src}: no such file or directory")
     if src.is_file():
         out = Path(args.out) if args.out else src.with_name(src.stem + "_session")
         session_path, note = session_from_raw(src, out, args.mp4, progress=progress, led_roi=args.led_roi,
-                                              exposure_s=args.exposure)
+                                              exposure_s=args.exposure, ball=ball)
         if note:
             print(note)
     else:
         session_path = src
+        if ball:
+            with update_session(session_path) as writer:
+                writer.set_attrs(ball=ball)
     damage = open_session(session_path).damage
     if damage:
         print(f"note: {session_path}: {damage}", file=sys.stderr)
@@ -80,7 +85,7 @@ def _run(args) -> None:
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "
           f"{len(result.spin['rps'])} spin estimates"
           + (f"; Rerun recording {result.rrd_path}" if result.rrd_path else ""))
-    print(format_flight_table(flight_table(result.track, result.spin)))
+    print(format_flight_table(session_results(session_path)[0]))
 
 
 if __name__ == "__main__":

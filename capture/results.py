@@ -4,10 +4,10 @@
 :func:`flight_table` sums the windows of each flight up into one row: spin rate in rpm with an
 uncertainty, the axis, topspin / sidespin / gyro components, spin efficiency, the axis tilt as a
 clock face, the share of windows trusted, the image speed and, with the camera's intrinsics and
-the ball's size, the distance and the speed across the view. Flights without a trusted window are
-listed with NaN spin (that is the yield), never left out. :func:`format_flight_table` prints the
-table, :func:`write_csv` and :func:`write_parquet` export either table with the units in the column
-names.
+the ball's size, the distance and the ball's 3D velocity (:func:`flight_velocity`). Flights
+without a trusted window are listed with NaN spin (that is the yield), never left out.
+:func:`format_flight_table` prints the table, :func:`write_csv` and :func:`write_parquet` export
+either table with the units in the column names.
 
 Flight frame (camera frame: X right, Y down, Z forward; see ``docs/conventions.md``):
 
@@ -125,35 +125,92 @@ def _spread_sigma(values: np.ndarray, window_sigmas: np.ndarray) -> float:
     return float(np.nanmax([spread, own / np.sqrt(n)]))
 
 
-def flight_table(track: Track, spin: dict, *, focal_px: float | None = None,
-                 ball_diameter_m: float | None = None) -> dict[str, np.ndarray]:
+def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float) -> dict[str, float]:
+    """The ball's distance and 3D velocity over a flight from its track and its known size.
+
+    Each track row puts the ball's centre on the ray through its image centre (``camera.rays``:
+    lens distortion undone) at depth ``Z = f * D / (2 r)``: the apparent radius gives the distance.
+    Each coordinate is fitted over the flight with a quadratic in time (gravity in any direction;
+    a line for fewer than 5 rows) and the velocity is taken at the middle of the flight. Its
+    sigma comes from the fit's residuals (radius noise moves ``Z`` most), propagated to the speed.
+    A bias of the ball's diameter or of the fitted radius scales distance and speed alike.
+
+    Parameters
+    ----------
+    t_us, cx_px, cy_px, r_px : array_like, shape (N,)
+        The flight's track rows: time (µs) and circle (px).
+    camera : object with ``focal_px`` and ``rays(uv_px) -> (N, 3)``
+        The event camera (:class:`calib.intrinsics.Intrinsics`).
+    ball_diameter_m : float
+
+    Returns
+    -------
+    dict
+        ``distance_m`` (from the camera to the ball's centre at mid-flight), ``velocity_m_s`` (3,
+        camera frame), ``speed_m_s``, ``speed_sigma_m_s`` (1 sigma; NaN with fewer than 3 rows),
+        ``speed_los_m_s`` (along the line of sight, > 0 away from the camera) and
+        ``speed_across_m_s`` (across it); NaN where not measurable (fewer than 2 rows).
+    """
+    nan = float("nan")
+    out = {"distance_m": nan, "velocity_m_s": np.full(3, nan), "speed_m_s": nan, "speed_sigma_m_s": nan,
+           "speed_los_m_s": nan, "speed_across_m_s": nan}
+    t = (np.asarray(t_us, np.float64) - np.mean(t_us)) * 1e-6
+    r = np.asarray(r_px, np.float64)
+    ok = r > 0
+    if ok.sum() < 2 or np.ptp(t[ok]) <= 0:
+        return out
+    rays = np.asarray(camera.rays(np.column_stack([cx_px, cy_px])[ok]), np.float64)
+    t = t[ok]
+    p = rays * (camera.focal_px * 0.5 * ball_diameter_m / r[ok])[:, None]  # (n, 3) m
+    a = np.vander(t, 3 if len(t) >= 5 else 2, increasing=True)  # 1, t, (t^2)
+    coef, _, rank, _ = np.linalg.lstsq(a, p, rcond=None)
+    if rank < a.shape[1]:
+        return out
+    position, velocity = coef[0], coef[1]
+    dof = len(t) - a.shape[1]
+    speed = float(np.linalg.norm(velocity))
+    sigma = nan
+    if dof > 0:
+        var_v = np.sum((p - a @ coef) ** 2, axis=0) / dof * np.linalg.inv(a.T @ a)[1, 1]  # per coordinate
+        sigma = float(np.sqrt(np.sum((velocity / speed) ** 2 * var_v))) if speed > 0 else float(np.sqrt(var_v.max()))
+    distance = float(np.linalg.norm(position))
+    los = float(velocity @ position / distance)
+    out.update(distance_m=distance, velocity_m_s=velocity, speed_m_s=speed, speed_sigma_m_s=sigma,
+               speed_los_m_s=los, speed_across_m_s=float(np.sqrt(max(speed ** 2 - los ** 2, 0.0))))
+    return out
+
+
+def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: float | None = None,
+                 ball: str | None = None) -> dict[str, np.ndarray]:
     """One row per flight of ``track`` from the spin windows of ``spin`` (:data:`SPIN_COLUMNS`).
 
     Spin is the median of the flight's trusted windows (confidence >= :data:`TRUST`), its sigma
     the standard error from their spread (at least the windows' own sigma over sqrt(n)); the axis
     is their mean, the components are those of the mean spin vector in the flight frame of the
-    flight's median image velocity. ``focal_px`` (the event camera's) and ``ball_diameter_m``
-    give the distance (m, from the apparent radius) and the speed across the view (m/s, km/h; the
-    speed along the line of sight is not measured).
+    flight's median image velocity. ``camera`` (the event camera's intrinsics) and
+    ``ball_diameter_m`` give the distance and the ball's 3D velocity (:func:`flight_velocity`);
+    ``ball`` names the ball (a key of :data:`BALL_DIAMETER_M`, or None).
 
-    Columns: ``flight``, ``t_start_s``, ``t_end_s``, ``duration_ms``, ``n_windows``, ``n_trusted``,
-    ``trusted_share``, ``rpm``, ``rpm_sigma``, ``rps``, ``axis_x``, ``axis_y``, ``axis_z``,
-    ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``, ``tilt``,
-    ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``speed_m_s``, ``speed_km_h``.
+    Columns: ``flight``, ``ball``, ``t_start_s``, ``t_end_s``, ``duration_ms``, ``n_windows``,
+    ``n_trusted``, ``trusted_share``, ``rpm``, ``rpm_sigma``, ``rps``, ``axis_x``, ``axis_y``,
+    ``axis_z``, ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``,
+    ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``speed_m_s`` (3D),
+    ``speed_sigma_m_s``, ``speed_km_h``, ``speed_los_m_s`` (along the line of sight, > 0 away),
+    ``speed_across_m_s``.
     """
     win = window_table(track, spin)
     rows = []
+    nan = float("nan")
     for fl in track.flight_ids():
         sel = track.flight == fl
         t = track.t_us[sel]
         vx, vy, r = np.median(track.vx[sel]), np.median(track.vy[sel]), float(np.median(track.r[sel]))
         mine = win["flight"] == fl
         ok = mine & win["trusted"]
-        row = {"flight": int(fl), "t_start_s": t[0] * 1e-6, "t_end_s": t[-1] * 1e-6,
+        row = {"flight": int(fl), "ball": ball or "-", "t_start_s": t[0] * 1e-6, "t_end_s": t[-1] * 1e-6,
                "duration_ms": (t[-1] - t[0]) * 1e-3, "n_windows": int(mine.sum()), "n_trusted": int(ok.sum()),
                "trusted_share": float(ok.sum() / mine.sum()) if mine.any() else 0.0,
                "image_speed_px_s": float(np.hypot(vx, vy)), "radius_px": r}
-        nan = float("nan")
         row.update(rpm=nan, rpm_sigma=nan, rps=nan, axis_x=nan, axis_y=nan, axis_z=nan, axis_sigma_deg=nan,
                    topspin_rpm=nan, sidespin_rpm=nan, gyro_rpm=nan, efficiency=nan, tilt="-")
         if ok.any():
@@ -172,17 +229,18 @@ def flight_table(track: Track, spin: dict, *, focal_px: float | None = None,
                        topspin_rpm=60.0 * top, sidespin_rpm=60.0 * side, gyro_rpm=60.0 * gyro,
                        efficiency=float(np.hypot(top, side) / rate) if rate > 0 else nan,
                        tilt=tilt_clock(top, side))
-        dist = speed = nan
-        if focal_px and ball_diameter_m and r > 0:
-            dist = focal_px * 0.5 * ball_diameter_m / r
-            speed = row["image_speed_px_s"] * dist / focal_px
-        row.update(distance_m=dist, speed_m_s=speed, speed_km_h=3.6 * speed)
+        motion = {"distance_m": nan, "speed_m_s": nan, "speed_sigma_m_s": nan, "speed_los_m_s": nan,
+                  "speed_across_m_s": nan}
+        if camera is not None and ball_diameter_m:
+            found = flight_velocity(t, track.cx[sel], track.cy[sel], track.r[sel], camera, ball_diameter_m)
+            motion = {k: found[k] for k in motion}
+        row.update(motion, speed_km_h=3.6 * motion["speed_m_s"])
         rows.append(row)
-    names = ["flight", "t_start_s", "t_end_s", "duration_ms", "n_windows", "n_trusted", "trusted_share", "rpm",
-             "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm", "sidespin_rpm",
-             "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m", "speed_m_s",
-             "speed_km_h"]
-    return {k: np.array([row[k] for row in rows], dtype=object if k == "tilt" else None) for k in names}
+    names = ["flight", "ball", "t_start_s", "t_end_s", "duration_ms", "n_windows", "n_trusted", "trusted_share",
+             "rpm", "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm",
+             "sidespin_rpm", "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m",
+             "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s"]
+    return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball") else None) for k in names}
 
 
 def format_flight_table(table: dict) -> str:
@@ -190,9 +248,12 @@ def format_flight_table(table: dict) -> str:
     n = len(table["flight"])
     if n == 0:
         return "no flight found"
-    speed = np.isfinite(table["speed_m_s"]).any()
-    head = (f"{'flight':>6} {'start s':>8} {'ms':>6} {'trusted':>8} {'rpm':>13} {'topspin':>8} {'sidespin':>8} "
-            f"{'gyro':>7} {'eff':>5} {'tilt':>6} {'px/s':>7}" + (f" {'m':>5} {'km/h':>6}" if speed else ""))
+    speed = np.isfinite(np.asarray(table["speed_m_s"], float)).any()
+    balls = [b for b in table.get("ball", ()) if b != "-"]
+    width = max([4, *map(len, balls)])
+    head = ((f"{'ball':<{width}} " if balls else "")
+            + f"{'flight':>6} {'start s':>8} {'ms':>6} {'trusted':>8} {'rpm':>13} {'topspin':>8} {'sidespin':>8} "
+            f"{'gyro':>7} {'eff':>5} {'tilt':>6} {'px/s':>7}" + (f" {'m':>5} {'km/h':>12}" if speed else ""))
     lines = [head]
     for i in range(n):
         trusted = f"{table['n_trusted'][i]}/{table['n_windows'][i]}"
@@ -202,14 +263,16 @@ def format_flight_table(table: dict) -> str:
                     f"{100 * table['efficiency'][i]:>4.0f}% {table['tilt'][i]:>6}")
         else:
             spin = f"{'no trusted estimate':>51}"
-        line = (f"{table['flight'][i]:>6} {table['t_start_s'][i]:>8.3f} {table['duration_ms'][i]:>6.0f} {trusted:>8} "
-                f"{spin} {table['image_speed_px_s'][i]:>7.0f}")
+        line = ((f"{table['ball'][i]:<{width}} " if balls else "")
+                + f"{table['flight'][i]:>6} {table['t_start_s'][i]:>8.3f} {table['duration_ms'][i]:>6.0f} "
+                f"{trusted:>8} {spin} {table['image_speed_px_s'][i]:>7.0f}")
         if speed:
-            line += f" {table['distance_m'][i]:>5.1f} {table['speed_km_h'][i]:>6.1f}"
+            kmh = f"{table['speed_km_h'][i]:.1f} ± {3.6 * table['speed_sigma_m_s'][i]:.1f}"
+            line += f" {table['distance_m'][i]:>5.1f} {kmh:>12}"
         lines.append(line)
     ok = int(np.isfinite(np.asarray(table["rpm"], float)).sum())
     lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
-                 "tilt seen from behind, 12:00 backspin)")
+                 "tilt seen from behind, 12:00 backspin" + ("; m: distance, km/h: 3D speed ± 1 sigma)" if speed else ")"))
     return "\n".join(lines)
 
 

@@ -58,7 +58,7 @@ def test_demo_records_analyses_and_reviews(demo):
     assert any("ball3d" in p for p in paths)
 
 
-def test_replay_of_the_bare_raw_and_video_reproduces_the_session(demo, tmp_path):
+def test_replay_of_the_bare_raw_and_video_reproduces_the_session(demo, tmp_path, capsys):
     from capture.replay import main as replay_main
 
     _, out, _ = demo
@@ -66,9 +66,14 @@ def test_replay_of_the_bare_raw_and_video_reproduces_the_session(demo, tmp_path)
     video = next((out / "gopro").glob("*.MP4"))
     new = tmp_path / "from_raw"
     rc = replay_main([str(out / "events.raw"), "--mp4", str(video), "--out", str(new), "--quiet",
-                      "--led-roi", "8,8,24,24", "--exposure", str(1 / 240), "--rrd", str(tmp_path / "r.rrd")])
+                      "--led-roi", "8,8,24,24", "--exposure", str(1 / 240), "--rrd", str(tmp_path / "r.rrd"),
+                      "--ball", "soccer"])
     assert rc == 0
     r = open_session(new)
+    assert r.attrs["ball"] == {"type": "soccer", "diameter_m": 0.22}  # recorded with the new session
+    table = capsys.readouterr().out.splitlines()
+    head = next(i for i, line in enumerate(table) if line.split()[:2] == ["ball", "flight"])
+    assert table[head + 1].split()[0] == "soccer"
     assert np.array_equal(r.events(), s.events()) and np.array_equal(r.triggers(), s.triggers())
     assert np.array_equal(r.frames()["t_us"], s.frames()["t_us"])
     assert np.array_equal(r.spin()["rps"], s.spin()["rps"])  # same inputs, same results

@@ -26,8 +26,9 @@ def test_info_prints_header_counts_and_rate(shared_raw_dir, capsys):
 
 def test_ingest_raw_writes_session_with_events_triggers_and_header(shared_raw_dir, tmp_path):
     session_dir = tmp_path / "s1"
-    assert ingest_main(["raw", str(shared_raw_dir / NAME), str(session_dir), "--quiet"]) == 0
+    assert ingest_main(["raw", str(shared_raw_dir / NAME), str(session_dir), "--quiet", "--ball", "tennis"]) == 0
     s = Session(session_dir)
+    assert s.attrs["ball"] == {"type": "tennis", "diameter_m": 0.067}
     r = raw.read(shared_raw_dir / NAME)
     assert (s.width, s.height) == (1280, 720)
     np.testing.assert_array_equal(s.events(), r.events)
@@ -36,6 +37,9 @@ def test_ingest_raw_writes_session_with_events_triggers_and_header(shared_raw_di
     assert s.attrs["sensor"]["raw_header"]["geometry"] == "1280x720"
     assert s.attrs["raw_source"]["stats"]["events"] == 82469
     assert s.attrs["raw_source"]["damage"] is None
+    assert ingest_main(["raw", str(shared_raw_dir / NAME), str(tmp_path / "s3"), "--quiet",
+                        "--ball-diameter", "-1"]) == 1  # a wrong diameter: one line, no session
+    assert not (tmp_path / "s3").exists()
 
 
 def test_ingest_raw_refuses_existing_session_and_bad_file(shared_raw_dir, tmp_path, capsys):

@@ -7,7 +7,8 @@ import pytest
 import sim
 from capture.events import SPIN_COLUMNS, Track, empty_table
 from capture.report import main as report_main
-from capture.results import flight_table, format_flight_table, tilt_clock, window_table, write_csv, write_parquet
+from capture.results import (flight_table, flight_velocity, format_flight_table, tilt_clock, window_table, write_csv,
+                             write_parquet)
 from capture.session import create_session
 from detect import spin_windows, track_ball
 
@@ -87,14 +88,69 @@ def test_flights_without_a_trusted_window_are_listed_as_such():
     assert list(np.unique(w["flight"])) == [0, 1] and w["trusted"].sum() == 8
 
 
+def _camera(f=1000.0, cx=240.0, cy=160.0, dist=(0.0, 0.0, 0.0, 0.0, 0.0)):
+    from calib import Intrinsics
+
+    return Intrinsics(K=np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]]), dist=np.asarray(dist, float),
+                      width=480, height=320)
+
+
 def test_distance_and_speed_from_the_ball_size():
     v = (1000, 0)
-    t = flight_table(_track(v, r=21.0), _spin((0, 0, -1), 30.0, v), focal_px=1000.0, ball_diameter_m=0.21)
-    assert t["distance_m"][0] == pytest.approx(5.0)      # 1000 px * 0.105 m / 21 px
+    t = flight_table(_track(v, r=21.0), _spin((0, 0, -1), 30.0, v), camera=_camera(cx=149.0, cy=100.0),
+                     ball_diameter_m=0.21, ball="volleyball")
+    assert t["distance_m"][0] == pytest.approx(5.0)      # 1000 px * 0.105 m / 21 px, on the optical axis
     assert t["speed_m_s"][0] == pytest.approx(5.0)       # 1000 px/s at 5 m with f = 1000 px
+    assert t["speed_across_m_s"][0] == pytest.approx(5.0) and t["speed_los_m_s"][0] == pytest.approx(0.0, abs=1e-9)
     assert t["speed_km_h"][0] == pytest.approx(18.0)
-    assert "km/h" in format_flight_table(t)
-    assert np.isnan(flight_table(_track(v), _spin((0, 0, -1), 30.0, v))["speed_m_s"][0])
+    text = format_flight_table(t)
+    assert "km/h" in text and "volleyball" in text.splitlines()[1]
+    plain = flight_table(_track(v), _spin((0, 0, -1), 30.0, v))
+    assert np.isnan(plain["speed_m_s"][0]) and plain["ball"][0] == "-" and "ball" not in format_flight_table(plain)
+
+
+def _flight_rows(p0_m, v_m_s, camera, diameter_m, *, n=120, dt_s=0.002, g_m_s2=(0.0, 9.81, 0.0), r_noise_px=0.0,
+                 c_noise_px=0.0, rng=None):
+    """Track rows of a ball flying from ``p0_m`` at ``v_m_s`` (camera frame) under gravity, seen by
+    ``camera``: centre projected, radius f D / (2 Z), noise added."""
+    t = np.arange(n) * dt_s
+    p = np.asarray(p0_m) + np.outer(t, v_m_s) + 0.5 * np.outer(t ** 2, g_m_s2)
+    uv = camera.project(p)
+    r = camera.focal_px * 0.5 * diameter_m / p[:, 2]
+    if rng is not None:
+        r = r + r_noise_px * rng.standard_normal(n)
+        uv = uv + c_noise_px * rng.standard_normal(uv.shape)
+    mid = np.asarray(v_m_s) + np.asarray(g_m_s2) * t[-1] / 2  # velocity at the middle of the flight
+    return (t * 1e6).astype(np.int64), uv[:, 0], uv[:, 1], r, mid
+
+
+@pytest.mark.parametrize("v_m_s", [(12.0, -3.0, 0.0), (8.0, -2.0, 6.0), (-10.0, -4.0, -5.0), (0.5, -6.0, 4.0)])
+def test_3d_velocity_from_the_track_and_the_ball_size(v_m_s):
+    """Across the view, towards or away from the camera, straight up: the 3D velocity at mid-flight,
+    through a lens with distortion, within its sigma."""
+    cam = _camera(dist=(-0.12, 0.03, 0.0, 0.0, 0.0))
+    t, cx, cy, r, mid = _flight_rows((-0.6, 0.3, 6.0), v_m_s, cam, 0.21, n=60, dt_s=0.002)
+    out = flight_velocity(t, cx, cy, r, cam, 0.21)
+    assert out["velocity_m_s"] == pytest.approx(mid, abs=1e-3)
+    assert out["speed_m_s"] == pytest.approx(np.linalg.norm(mid), rel=1e-4)
+    centre = np.array([-0.6, 0.3, 6.0]) + np.asarray(v_m_s) * 0.059 + 0.5 * np.array([0, 9.81, 0]) * 0.059 ** 2
+    los = mid @ centre / np.linalg.norm(centre)
+    assert out["speed_los_m_s"] == pytest.approx(los, abs=0.02)
+    assert out["speed_across_m_s"] == pytest.approx(np.sqrt(mid @ mid - los ** 2), abs=0.02)
+
+
+def test_3d_speed_sigma_means_what_it_says():
+    """Radius noise of 0.3 px on a 20 px ball: over 300 noisy flights the error is within 1 sigma
+    about 68 % of the time and within 3 sigma almost always."""
+    cam, rng = _camera(), np.random.default_rng(7)
+    z = []
+    for _ in range(300):
+        t, cx, cy, r, mid = _flight_rows((-0.8, 0.0, 5.0), (10.0, -2.0, 3.0), cam, 0.21, n=40, dt_s=0.004,
+                                         r_noise_px=0.3, c_noise_px=0.1, rng=rng)
+        out = flight_velocity(t, cx, cy, r, cam, 0.21)
+        z.append((out["speed_m_s"] - np.linalg.norm(mid)) / out["speed_sigma_m_s"])
+    z = np.abs(np.array(z))
+    assert 0.58 < np.mean(z < 1) < 0.78 and np.mean(z < 3) > 0.97
 
 
 def test_csv_reads_back_with_pandas_and_keeps_units_in_the_names(tmp_path):
@@ -199,15 +255,15 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
     assert "Flight 0" in doc
 
 
-def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path):
+def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path, capsys):
     """``capture.run --ball`` stores the ball; with the event camera's calibration the session's
     tables then have distances and speeds without asking again (an explicit diameter wins)."""
-    from calib import CameraPair, Intrinsics, store_calibration
+    from calib import CameraPair, store_calibration
     from capture.pipeline.replay import session_results
     from capture.session import update_session
 
     path, v = tmp_path / "s", (1000, 0)
-    event = Intrinsics(K=np.diag([1000.0, 1000.0, 1.0]), dist=np.zeros(5), width=480, height=320)
+    event = _camera(cx=149.0, cy=100.0)  # the ball's mid-flight on the optical axis
     with create_session(path, width=480, height=320) as w:
         store_calibration(w, cameras=CameraPair(frame=event, event=event, homography=np.eye(3)))
         w.write_track(_track(v, r=21.0))
@@ -217,4 +273,8 @@ def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path):
         w.set_attrs(ball={"type": "volleyball", "diameter_m": 0.21})
     flights = session_results(path)[0]
     assert flights["distance_m"][0] == pytest.approx(5.0) and flights["speed_m_s"][0] == pytest.approx(5.0)
+    assert flights["ball"][0] == "volleyball"
     assert session_results(path, ball_diameter_m=0.42)[0]["distance_m"][0] == pytest.approx(10.0)
+    assert report_main([str(path), "--ball", "tennis"]) == 0  # an explicit ball wins, named in the table
+    row = capsys.readouterr().out.splitlines()[1].split()
+    assert row[0] == "tennis" and float(row[-4]) == pytest.approx(5.0 * 0.067 / 0.21, abs=0.05)

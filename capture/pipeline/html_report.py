@@ -19,15 +19,16 @@ from pathlib import Path
 import numpy as np
 
 from capture.events import Track
-from capture.results import TRUST, flight_table, window_table
+from capture.results import TRUST
 
-_COLUMNS = [("flight", "flight", "{}"), ("t_start_s", "start (s)", "{:.3f}"), ("duration_ms", "duration (ms)", "{:.0f}"),
+_COLUMNS = [("flight", "flight", "{}"), ("ball", "ball", "{}"), ("t_start_s", "start (s)", "{:.3f}"), ("duration_ms", "duration (ms)", "{:.0f}"),
             ("n_trusted", "trusted windows", "{}"), ("n_windows", "windows", "{}"), ("rpm", "rpm", "{:.0f}"),
             ("rpm_sigma", "± rpm (1σ)", "{:.0f}"), ("topspin_rpm", "topspin rpm", "{:.0f}"),
             ("sidespin_rpm", "sidespin rpm", "{:.0f}"), ("gyro_rpm", "gyro rpm", "{:.0f}"),
             ("efficiency", "efficiency", "{:.0%}"), ("tilt", "tilt", "{}"),
             ("axis_sigma_deg", "axis ± deg (1σ)", "{:.1f}"), ("image_speed_px_s", "image speed (px/s)", "{:.0f}"),
-            ("speed_km_h", "speed (km/h)", "{:.1f}")]
+            ("distance_m", "distance (m)", "{:.1f}"), ("speed_km_h", "3D speed (km/h)", "{:.1f}"),
+            ("speed_sigma_m_s", "± m/s (1σ)", "{:.2f}")]
 
 
 def _png(fig) -> str:
@@ -137,8 +138,11 @@ def _track_plot(track: Track, width: int, height: int) -> str:
     return _png(fig)
 
 
-def write_html(session_path, out_path, *, ball_diameter_m: float | None = None) -> Path:
+def write_html(session_path, out_path, *, ball_diameter_m: float | None = None, ball_type: str | None = None) -> Path:
     """Write the report of an analysed session to ``out_path`` (one HTML file, images inside).
+
+    ``ball_diameter_m`` and ``ball_type`` as for :func:`capture.pipeline.replay.session_results`
+    (default: the ball recorded with the session).
 
     Raises
     ------
@@ -148,7 +152,7 @@ def write_html(session_path, out_path, *, ball_diameter_m: float | None = None) 
     import matplotlib
 
     matplotlib.use("Agg")
-    from capture.pipeline.replay import event_camera
+    from capture.pipeline.replay import session_results
     from capture.session import open_session
 
     s = open_session(session_path)
@@ -157,10 +161,7 @@ def write_html(session_path, out_path, *, ball_diameter_m: float | None = None) 
                          f"{session_path}")
     track = Track.from_columns(s.track())
     spin = s.spin()
-    camera = event_camera(s) if ball_diameter_m else None
-    flights = flight_table(track, spin, focal_px=camera.focal_px if camera is not None else None,
-                           ball_diameter_m=ball_diameter_m)
-    win = window_table(track, spin)
+    flights, win = session_results(s, ball_diameter_m=ball_diameter_m, ball_type=ball_type)
     parts = [f"<h1>Session {html.escape(Path(session_path).name)}</h1>",
              f"<p>{s.width}x{s.height} sensor, recorded {html.escape(str(s.attrs.get('created_utc', '?')))}, "
              f"software {html.escape(str(s.attrs.get('software_version', '?')))}. "

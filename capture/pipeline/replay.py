@@ -465,15 +465,25 @@ def store_results(session_path, track: Track, spin_columns: dict, options: Repla
     writer.close(analysis=analysis_stamp(options))
 
 
-def stored_ball_diameter_m(session) -> float | None:
-    """The ball's diameter (m) recorded with a session (attrs ``ball``, written by
-    ``capture.run --ball/--ball-diameter``), or None."""
+def stored_ball(session) -> tuple[str | None, float | None]:
+    """The ball ``(type, diameter_m)`` recorded with a session (attrs ``ball``, written by
+    ``--ball/--ball-diameter`` of ``capture.run``, ``capture.replay`` and ``capture.ingest raw``);
+    None for what it does not say."""
     ball = session.attrs.get("ball")
-    d = ball.get("diameter_m") if isinstance(ball, dict) else None
-    return float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 else None
+    if not isinstance(ball, dict):
+        return None, None
+    d, kind = ball.get("diameter_m"), ball.get("type")
+    diameter = float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 else None
+    return (kind if isinstance(kind, str) else None), diameter
 
 
-def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[dict, dict]:
+def stored_ball_diameter_m(session) -> float | None:
+    """The ball's diameter (m) recorded with a session (see :func:`stored_ball`), or None."""
+    return stored_ball(session)[1]
+
+
+def session_results(session, *, ball_diameter_m: float | None = None,
+                    ball_type: str | None = None) -> tuple[dict, dict]:
     """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
 
     Parameters
@@ -481,8 +491,10 @@ def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[d
     session : path or capture.session.Session
         The session's directory, or the session already open.
     ball_diameter_m : float, optional
-        The ball's diameter, m (default: the one recorded with the session, if any), for the
-        distance and speed columns (with the event camera's calibration).
+        The ball's diameter, m, for the distance and speed columns (with the event camera's
+        calibration). Default: the ball recorded with the session (:func:`stored_ball`), if any.
+    ball_type : str, optional
+        The ball's name for the ``ball`` column, with ``ball_diameter_m``.
 
     Raises
     ------
@@ -495,10 +507,9 @@ def session_results(session, *, ball_diameter_m: float | None = None) -> tuple[d
         raise ValueError(f"{s.path}: not analysed yet (no ball track); run: python -m capture.replay {s.path}")
     spin_columns = s.spin()
     if ball_diameter_m is None:
-        ball_diameter_m = stored_ball_diameter_m(s)
+        ball_type, ball_diameter_m = stored_ball(s)
     camera = event_camera(s) if ball_diameter_m else None
-    flights = flight_table(track, spin_columns, focal_px=camera.focal_px if camera is not None else None,
-                           ball_diameter_m=ball_diameter_m)
+    flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type)
     return flights, window_table(track, spin_columns)
 
 
