@@ -21,8 +21,7 @@ import time
 from pathlib import Path
 
 from capture.pipeline.html_report import write_html
-from capture.pipeline.replay import session_results
-from capture.results import format_flight_table
+from capture.results import format_flight_table, session_results
 from capture.run import main as run_main
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.intrinsics import Intrinsics
 from calib.stereo import CameraPair
 from calib.sync import TimeMap
 
@@ -80,3 +81,20 @@ def load_calibration(attrs: dict) -> tuple[TimeMap | None, CameraPair | None]:
     tm = TimeMap.from_dict(attrs["time_sync"]) if attrs.get("time_sync") else None
     cp = CameraPair.from_dict(attrs["calibration"]) if attrs.get("calibration") else None
     return tm, cp
+
+
+def event_camera(session) -> Intrinsics | None:
+    """The event camera's intrinsics from a session's calibration (attrs ``calibration``, see
+    ``calib.store.load_calibration``), or None when it has none.
+
+    Raises
+    ------
+    ValueError
+        When the calibrated camera's image size is not the session's sensor size.
+    """
+    cameras = load_calibration(session.attrs)[1]
+    camera = None if cameras is None else cameras.event
+    if camera is not None and (camera.width, camera.height) != (session.width, session.height):
+        raise ValueError(f"calibration: the event camera is calibrated for {camera.width}x{camera.height} px, "
+                         f"the session's sensor is {session.width}x{session.height} px")
+    return camera

@@ -20,7 +20,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from capture.results import BALL_DIAMETER_M
+from capture.events import BALL_DIAMETER_M
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130

@@ -4,6 +4,7 @@
   1-D NumPy structured array of :data:`EVENT_DTYPE`; external trigger events use
   :data:`TRIGGER_DTYPE`. Times are integer microseconds on the event camera's clock,
   non-decreasing within a batch.
+- :data:`BALL_DIAMETER_M`: the ball presets (``--ball``), their diameters.
 - :data:`TRACK_COLUMNS` and :class:`Track`: the ball track (detection's output, the session
   store's ``track/`` table, the review's ball circle).
 - :data:`SPIN_COLUMNS` and :func:`spin_table`: spin estimates as columns (the spin
@@ -157,6 +158,10 @@ def in_order_mask(t_us: np.ndarray, floor_us: int | None = None) -> np.ndarray:
     return keep
 
 # -- tables ------------------------------------------------------------------------------------
+
+BALL_DIAMETER_M = {"volleyball": 0.21, "soccer": 0.22, "basketball": 0.24, "tennis": 0.067,
+                   "tabletennis": 0.040, "baseball": 0.074, "handball": 0.19}
+"""Ball diameters by sport (m), for distances and speeds."""
 
 TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_us": ("<i8", ()), "cx": ("<f8", ()), "cy": ("<f8", ()), "r": ("<f8", ()),

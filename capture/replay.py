@@ -12,8 +12,8 @@ from pathlib import Path
 
 from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_command
 from capture.ingest import session_from_raw
-from capture.pipeline.replay import ReplayOptions, replay, session_results
-from capture.results import format_flight_table
+from capture.pipeline.replay import ReplayOptions, replay
+from capture.results import format_flight_table, session_results
 from capture.session import open_session, update_session
 
 PROG = "python -m capture.replay"

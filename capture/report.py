@@ -15,9 +15,8 @@ import sys
 import numpy as np
 
 from capture.cliargs import add_ball_args, ball_attr, run_command
-from capture.pipeline.replay import session_results, stored_ball
 from capture.session import open_session
-from capture.results import format_flight_table, write_csv, write_parquet
+from capture.results import format_flight_table, session_results, stored_ball, write_csv, write_parquet
 
 PROG = "python -m capture.report"
 

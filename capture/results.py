@@ -35,9 +35,6 @@ from capture.events import Track
 TRUST = 0.5
 """Least confidence of a trusted spin window."""
 
-BALL_DIAMETER_M = {"volleyball": 0.21, "soccer": 0.22, "basketball": 0.24, "tennis": 0.067,
-                   "tabletennis": 0.040, "baseball": 0.074, "handball": 0.19}
-"""Ball diameters by sport (m), for distances and speeds."""
 
 _VERTICAL_DEG = 20.0
 
@@ -189,7 +186,7 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     is their mean, the components are those of the mean spin vector in the flight frame of the
     flight's median image velocity. ``camera`` (the event camera's intrinsics) and
     ``ball_diameter_m`` give the distance and the ball's 3D velocity (:func:`flight_velocity`);
-    ``ball`` names the ball (a key of :data:`BALL_DIAMETER_M`, or None).
+    ``ball`` names the ball (a key of :data:`capture.events.BALL_DIAMETER_M`, or None).
 
     Columns: ``flight``, ``ball``, ``t_start_s``, ``t_end_s``, ``duration_ms``, ``n_windows``,
     ``n_trusted``, ``trusted_share``, ``rpm``, ``rpm_sigma``, ``rps``, ``axis_x``, ``axis_y``,
@@ -308,3 +305,49 @@ def _cell(v):
     if isinstance(v, (np.integer,)):
         return int(v)
     return v
+
+
+def stored_ball(session) -> tuple[str | None, float | None]:
+    """The ball ``(type, diameter_m)`` recorded with a session (attrs ``ball``, written by
+    ``--ball/--ball-diameter`` of ``capture.run``, ``capture.replay`` and ``capture.ingest raw``);
+    None for what it does not say."""
+    ball = session.attrs.get("ball")
+    if not isinstance(ball, dict):
+        return None, None
+    d, kind = ball.get("diameter_m"), ball.get("type")
+    diameter = float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 else None
+    return (kind if isinstance(kind, str) else None), diameter
+
+
+def session_results(session, *, ball_diameter_m: float | None = None,
+                    ball_type: str | None = None) -> tuple[dict, dict]:
+    """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
+
+    Parameters
+    ----------
+    session : path or capture.session.Session
+        The session's directory, or the session already open.
+    ball_diameter_m : float, optional
+        The ball's diameter, m, for the distance and speed columns (with the event camera's
+        calibration). Default: the ball recorded with the session (:func:`stored_ball`), if any.
+    ball_type : str, optional
+        The ball's name for the ``ball`` column, with ``ball_diameter_m``.
+
+    Raises
+    ------
+    ValueError
+        The session holds no track (it was not analysed yet).
+    """
+    from calib.store import event_camera
+    from capture.session import Session, open_session
+
+    s = session if isinstance(session, Session) else open_session(session)
+    track = Track.from_columns(s.track())
+    if len(track) == 0 and "track" not in s.root:
+        raise ValueError(f"{s.path}: not analysed yet (no ball track); run: python -m capture.replay {s.path}")
+    spin_columns = s.spin()
+    if ball_diameter_m is None:
+        ball_type, ball_diameter_m = stored_ball(s)
+    camera = event_camera(s) if ball_diameter_m else None
+    flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type)
+    return flights, window_table(track, spin_columns)

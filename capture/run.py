@@ -29,8 +29,8 @@ from pathlib import Path
 from capture.cliargs import add_ball_args, ball_attr, box, flicker_band, name_int, run_command
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
-from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay, session_results
-from capture.results import format_flight_table
+from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
+from capture.results import format_flight_table, session_results
 
 PROG = "python -m capture.run"
 

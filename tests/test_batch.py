@@ -12,7 +12,8 @@ distributed = pytest.importorskip("distributed")
 from capture import batch as batch_cli  # noqa: E402
 from capture.events import Track  # noqa: E402
 from capture.pipeline.batch import OneThreadPerWorker, local_cluster, run_batch  # noqa: E402
-from capture.pipeline.replay import ReplayOptions, replay, session_results  # noqa: E402
+from capture.pipeline.replay import ReplayOptions, replay  # noqa: E402
+from capture.results import session_results  # noqa: E402
 from capture.session import create_session, open_session  # noqa: E402
 from sim.esim import merge  # noqa: E402
 

@@ -50,12 +50,21 @@ def test_demo_records_analyses_and_reviews(demo):
     assert summary["rps_error_pct"] < 3.0
     assert summary["axis_error_deg"] < 3.0  # a flipped axis would be 180 deg off
     # the Rerun recording reads back with the ball and spin entities
-    paths = set()
+    paths, truth_rpm, ball_images = set(), [], []
     for chunk in RrdReader(out / "review.rrd").stream():
         paths.add(str(chunk.entity_path))
+        rb = chunk.to_record_batch()
+        if str(chunk.entity_path) == "/plots/rpm/truth" and "Scalars:scalars" in rb.schema.names:
+            truth_rpm += [v[0] for v in rb.column("Scalars:scalars").to_pylist()]
+        if str(chunk.entity_path) == "/ball/image" and "Image:format" in rb.schema.names:
+            ball_images += rb.column("Image:format").to_pylist()
     assert any(p.startswith("/events") for p in paths)
     assert any("rps" in p for p in paths)
     assert any("ball3d" in p for p in paths)
+    # the simulated truth drawn across the flight; a ball close-up per spin window (recorded | spin removed)
+    assert truth_rpm[:2] == [1800.0, 1800.0]
+    assert 0 < len(ball_images) <= len(s.spin()["rps"]) and ball_images[0][0]["width"] > 2 * ball_images[0][0]["height"]
+    assert "/frames/note" in paths  # the demo has no camera calibration: the GoPro view says why it has no circle
 
 
 def test_replay_of_the_bare_raw_and_video_reproduces_the_session(demo, tmp_path, capsys):

@@ -247,7 +247,7 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
     images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", doc)
     assert len(images) == 3  # the track, the flight's spin, its ball events
     assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
-    from capture.pipeline.replay import session_results
+    from capture.results import session_results
 
     flights, _ = session_results(path)
     assert flights["rpm"][0] == pytest.approx(1200.0, rel=0.03)
@@ -259,7 +259,7 @@ def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path, c
     """``capture.run --ball`` stores the ball; with the event camera's calibration the session's
     tables then have distances and speeds without asking again (an explicit diameter wins)."""
     from calib import CameraPair, store_calibration
-    from capture.pipeline.replay import session_results
+    from capture.results import session_results
     from capture.session import update_session
 
     path, v = tmp_path / "s", (1000, 0)

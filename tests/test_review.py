@@ -86,10 +86,10 @@ def _write_video(path: Path, codec: str) -> None:
     video.release()
 
 
-def _make_session(path: Path, *, frames: str = "images") -> Path:
+def _make_session(path: Path, *, frames: str = "images", calibrated: bool = True) -> Path:
     """A small session; ``frames`` is "images", "none", or a video codec ("mp4v", "h264")."""
-    with create_session(path, width=64, height=48,
-                        attrs={"calibration": {"homography": np.linalg.inv(H_FRAME_FROM_EVENT).tolist()}}) as w:
+    attrs = {"calibration": {"homography": np.linalg.inv(H_FRAME_FROM_EVENT).tolist()}} if calibrated else {}
+    with create_session(path, width=64, height=48, attrs=attrs) as w:
         w.append_events(_events())
         w.append_triggers(make_triggers([10_100, 15_100], [0, 0], [1, 0]))
         w.write_track(_track())
@@ -131,9 +131,18 @@ def _texts(data) -> list[str]:
     return [text for _, row in data["/log"]["TextLog:text"] for text in row]
 
 
-def _expected_logged(events: np.ndarray) -> int:
-    _, counts = np.unique(events["t"] // SLICE_US, return_counts=True)
-    return int(np.sum(-(-counts // -(-counts // CAP))))
+def _on_ball(events: np.ndarray) -> np.ndarray:
+    """Events within 1.25 radii of the track's circle at their time."""
+    cx, cy, r, valid = _track().circles_at(events["t"])
+    return valid & (np.hypot(events["x"] - cx, events["y"] - cy) <= 1.25 * np.nan_to_num(r))
+
+
+def _expected_logged(events: np.ndarray, *, ball_apart: bool = True) -> int:
+    """All the ball's events (fewer than the ball's cap per slice) and the others thinned to CAP by a
+    stride; without ``ball_apart`` (the live review, which has no track in advance) all thinned alike."""
+    ball = _on_ball(events) if ball_apart else np.zeros(len(events), bool)
+    _, counts = np.unique(events["t"][~ball] // SLICE_US, return_counts=True)
+    return int(ball.sum()) + int(np.sum(-(-counts // -(-counts // CAP))))
 
 
 @pytest.fixture(scope="module")
@@ -182,7 +191,7 @@ def test_events_sliced_split_by_polarity_and_decimated_by_stride(written):
     on = _temporal(data["/events/on"]["Points2D:positions"])
     off = _temporal(data["/events/off"]["Points2D:positions"])
     logged = sum(len(v) for _, v in on) + sum(len(v) for _, v in off)
-    assert logged == stats.n_events_logged == _expected_logged(events) == 300 + 400 + 350
+    assert logged == stats.n_events_logged == _expected_logged(events)
     assert stats.n_events == len(events) and stats.n_slices == 3 and stats.n_slices_decimated == 2
     # The undecimated first slice is logged exactly, at its start time, ON and OFF apart.
     first = events[events["t"] < 11_000]
@@ -191,11 +200,16 @@ def test_events_sliced_split_by_polarity_and_decimated_by_stride(written):
         assert t == 10_000
         sel = first[first["p"] == pol]
         np.testing.assert_array_equal(np.array(xy), np.c_[sel["x"], sel["y"]] + review.PIXEL_OFFSET)
-    # The decimated second slice keeps every 3rd event of the slice.
-    second = events[(events["t"] >= 11_000) & (events["t"] < 12_000)][::3]
+    # The decimated second slice keeps every event on the ball and every k-th of the others.
+    second = events[(events["t"] >= 11_000) & (events["t"] < 12_000)]
+    ball = _on_ball(second)
+    k = -(-np.count_nonzero(~ball) // CAP)
+    keep = ball.copy()
+    keep[np.flatnonzero(~ball)[::k]] = True
+    assert 50 < ball.sum() < CAP and k >= 2  # the ball's events are not thinned with the rest
     t, xy = on[1]
     assert t == 11_000
-    sel = second[second["p"] == 1]
+    sel = second[keep & (second["p"] == 1)]
     np.testing.assert_array_equal(np.array(xy), np.c_[sel["x"], sel["y"]] + review.PIXEL_OFFSET)
     # The first empty slice clears the points.
     assert (12_000, []) in on and (12_000, []) in off
@@ -218,8 +232,13 @@ def test_ball_circle_follows_track_and_clears_after_flight(written):
         np.testing.assert_allclose(centers[t][0], [track.cx[i] + 0.5, track.cy[i] + 0.5], rtol=1e-6)
         np.testing.assert_allclose(sizes[t][0], [track.r[i], track.r[i]])
     delay = 2 * 500  # twice the track step (500 µs) = SLICE_US here
-    assert sizes[13_000 + delay] == [] and sizes[16_000 + delay] == []
-    assert sum(v == [] for v in sizes.values()) == 2
+    assert [t for t, _ in _temporal(data["/events/ball"]["Clear:is_recursive"])] == [13_000 + delay, 16_000 + delay]
+    # the spin axis (3D and on the image) is cleared with the ball after each flight
+    for entity in ("/ball3d/axis", "/events/spin_axis", "/events/spin_pole"):
+        assert [t for t, _ in _temporal(data[entity]["Clear:is_recursive"])] == [13_000 + delay, 16_000 + delay]
+    # the image speed from the track
+    speed = dict((t, v[0]) for t, v in _temporal(data["/plots/speed/image_px_s"]["Scalars:scalars"]))
+    assert speed[10_000] == pytest.approx(4000.0)
 
 
 def test_spin_series_and_axis(written):
@@ -251,7 +270,69 @@ def test_spin_series_and_axis(written):
     np.testing.assert_allclose(series("/plots/spin/sidespin_rpm"), [0.0, 1200.0, -0.6 * 60 * 30.5], atol=1e-9)
     np.testing.assert_allclose(series("/plots/spin/topspin_rpm"), [0.0, 0.0, -0.8 * 60 * 30.5], atol=1e-9)
     labels = [v[0] for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:labels"])]
-    assert labels == ["10.0 rps ±0.4 %", "20.0 rps ±2.0 %", "30.5 rps ±6.0 %"]
+    assert labels == ["600 rpm ±0.4 %", "1200 rpm ±2.0 %", "not trusted (0.25)"]
+    colors = [v[0] for _, v in _temporal(data["/ball3d/axis"]["Arrows3D:colors"])]
+    rgb = lambda c: [(c >> s_) & 255 for s_ in (24, 16, 8)]  # noqa: E731
+    assert [rgb(c) for c in colors] == [list(review.layout.AXIS_COLOR)] * 2 + [list(review.layout.UNTRUSTED_COLOR)]
+    # the trust threshold across the spin windows
+    trust = [(t, v[0]) for t, v in _temporal(data["/plots/confidence/trust"]["Scalars:scalars"])]
+    assert trust == [(int(mid[0]), 0.5), (int(mid[-1]), 0.5)]
+
+
+def test_the_axis_pole_on_the_cameras_side_shows_where_the_axis_points(written):
+    """An axis toward or away from the camera projects to a short arrow; its pole on the camera's
+    side of the ball is drawn as a dot, so it is seen on the ball."""
+    _, _, _, data = written
+    mid = (SPIN["t_start_us"] + SPIN["t_end_us"]) // 2
+    poles = dict(_temporal(data["/events/spin_pole"]["Points2D:positions"]))
+    track = _track()
+    cx, cy, r, _ = track.circles_at(mid)
+    for i, axis in enumerate(SPIN["axis"]):
+        pole = axis if axis[2] <= 0 else -axis  # window 2's axis (0, 0.6, 0.8) points away: its -axis end shows
+        np.testing.assert_allclose(poles[int(mid[i])][0], [cx[i] + 0.5 + pole[0] * r[i], cy[i] + 0.5 + pole[1] * r[i]],
+                                   rtol=1e-5)
+    colors = dict(_temporal(data["/events/spin_pole"]["Points2D:colors"]))
+    rgb = lambda c: [(c >> s_) & 255 for s_ in (24, 16, 8)]  # noqa: E731
+    assert rgb(colors[int(mid[2])][0]) == list(review.layout.UNTRUSTED_COLOR)  # not trusted: grey
+
+
+def test_flights_marked_on_the_plots_and_in_the_log(written):
+    _, _, _, data = written
+    from capture.results import flight_table
+
+    table = flight_table(_track(), SPIN)
+    flight = [(t, v[0]) for t, v in _temporal(data["/plots/rpm/flight"]["Scalars:scalars"])]
+    # flight 0: its rate from its first to its last track row, then a break; flight 1 has no trusted window
+    assert flight[:2] == [(10_000, table["rpm"][0]), (13_000, table["rpm"][0])] and np.isnan(flight[2][1])
+    assert len(flight) == 3
+    texts = _texts(data)
+    assert any(t.startswith("flight 0 starts: 900 ± ") for t in texts)
+    assert any(t.startswith("flight 1 starts: no trusted estimate") for t in texts)
+    assert "flight 1 ends (1 ms)" in texts
+
+
+def _blueprint(rrd) -> dict:
+    """Blueprint entity -> component -> value of the review's blueprint."""
+    reader = RrdReader(rrd)
+    out = defaultdict(dict)
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        rb = chunk.to_record_batch()
+        for name in rb.schema.names:
+            if ":" in name:
+                out[str(chunk.entity_path)][name] = rb.column(name).to_pylist()[0]
+    return out
+
+
+def test_the_viewer_opens_on_the_first_flight_with_the_side_panels_folded(written):
+    _, rrd, _, _ = written
+    bp = _blueprint(rrd)
+    time_panel = bp["/time_panel"]
+    assert time_panel["TimePanelBlueprint:time_selection"] == [{"min": 10_000_000, "max": 13_000_000}]  # ns
+    assert time_panel["TimePanelBlueprint:playback_speed"] == [0.1]
+    assert bp["/blueprint_panel"]["PanelBlueprint:state"] == bp["/selection_panel"]["PanelBlueprint:state"]
+    names = {v[0] for e in bp.values() for k, v in e.items() if k.endswith(":display_name") and v}
+    assert {"Events", "GoPro", "Spin axis", "Spin (rpm)", "Speed", "Flights"} <= names
+    assert max(map(len, names)) <= 30  # titles short enough for a 1366 px wide screen
 
 
 def test_frames_as_images_with_mapped_circle(written):
@@ -267,6 +348,17 @@ def test_frames_as_images_with_mapped_circle(written):
     np.testing.assert_allclose(circles[12_500][0], [0.5 * cx + 3 + 0.5, 0.5 * cy + 4 + 0.5], rtol=1e-6)
     np.testing.assert_allclose(sizes[12_500][0], [0.5 * r, 0.5 * r], rtol=1e-6)
     assert circles[14_000] == []  # no ball between flights
+
+
+def test_frames_without_calibration_say_why_they_have_no_ball_circle(written, tmp_path):
+    _, _, _, data = written
+    assert "/frames/note" not in data  # calibrated: circles, no note
+    session = _make_session(tmp_path / "session", calibrated=False)
+    review.write_rrd(session, tmp_path / "n.rrd", progress=False)
+    plain = read_rrd(tmp_path / "n.rrd")
+    (label,) = plain["/frames/note"]["Points2D:labels"][0][1]
+    assert "not calibrated" in label and _temporal(plain["/frames/ball"]["Ellipses2D:centers"]) == []
+    assert any("no calibration between the event camera and the GoPro" in t for t in _texts(plain))
 
 
 def test_streaming_batch_size_does_not_change_result(written, tmp_path):
@@ -343,7 +435,7 @@ def test_live_review_rrd_mode_writes_same_layout(tmp_path):
     data = read_rrd(tmp_path / "live.rrd")
     logged = sum(len(v) for e in ("/events/on", "/events/off")
                  for _, v in _temporal(data[e]["Points2D:positions"]))
-    assert logged == live.stats.n_events_logged == _expected_logged(events)
+    assert logged == live.stats.n_events_logged == _expected_logged(events, ball_apart=False)
     assert _temporal(data["/plots/status/drops"]["Scalars:scalars"]) == [(15_500, [3.0])]
     assert _temporal(data["/plots/rps"]["Scalars:scalars"]) == [(15_500, [30.5])]
     assert [t for t, _ in _temporal(data["/frames/image"]["EncodedImage:blob"])] == [14_500]

@@ -240,6 +240,7 @@ def test_estimate_windows_along_a_track_with_the_camera():
 def test_replay_takes_the_event_camera_from_the_session_calibration(tmp_path, monkeypatch, two_crossings):
     import capture.pipeline.replay as replay_mod
     from calib.stereo import CameraPair
+    from calib.store import event_camera
     from capture.session import create_session, open_session
 
     rec = two_crossings[0]
@@ -252,9 +253,9 @@ def test_replay_takes_the_event_camera_from_the_session_calibration(tmp_path, mo
         with create_session(tmp_path / name, width=w, height=h, attrs=attrs) as writer:
             writer.append_events(rec.events)
         sessions[name] = tmp_path / name
-    assert replay_mod.event_camera(open_session(sessions["plain"])) is None
+    assert event_camera(open_session(sessions["plain"])) is None
     with pytest.raises(ValueError, match="calibrated for 640x480 px"):
-        replay_mod.event_camera(open_session(sessions["other_size"]))
+        event_camera(open_session(sessions["other_size"]))
     options = replay_mod.ReplayOptions(window_us=2000, max_window_us=8000, step_us=8000, min_events=300)
     parts = []
     replay_mod.track_session(sessions["calibrated"], options, progress=False, on_part=parts.append)

@@ -11,7 +11,7 @@ the sessions at the same path):
 - :func:`spin_unit` — one per part: reads the part's events from the store and estimates its
   windows (:func:`capture.pipeline.replay.spin_flight`; the same windows and numbers as replay);
 - :func:`store_unit` — writes the track and spin into the session exactly as replay does and
-  returns its per-flight and per-window tables (:func:`capture.pipeline.replay.session_results`);
+  returns its per-flight and per-window tables (:func:`capture.results.session_results`);
 - :func:`tables_unit` — the tables of a session skipped as already analysed.
 
 A worker that dies loses only the tasks it held, which the scheduler runs again elsewhere; a
@@ -30,8 +30,10 @@ from tqdm import tqdm
 
 from capture.cliargs import describe
 from capture.events import SPIN_COLUMNS, Track, concat_tables
-from capture.pipeline.replay import (ReplayOptions, analysed_with, event_camera, one_thread_per_worker,
-                                     session_results, spin_flight, store_results, track_session)
+from calib.store import event_camera
+from capture.pipeline.replay import (ReplayOptions, analysed_with, one_thread_per_worker, spin_flight, store_results,
+                                     track_session)
+from capture.results import session_results
 from capture.session import Session, open_session
 from detect.track import window_starts_us
 

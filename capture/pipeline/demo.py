@@ -22,7 +22,7 @@ import sim
 from capture.evk.fake import FakeEVK
 from capture.gopro import FakeGoPro, GoPro
 from capture.pipeline.record import RecordSettings
-from capture.results import BALL_DIAMETER_M
+from capture.events import BALL_DIAMETER_M
 
 DEMO_SPIN = {"rps": 30.0, "axis": (0.0, 0.0, -1.0)}
 """Spin of the demo ball: 30 rev/s of topspin for a ball flying to the right (+x)."""

@@ -88,31 +88,21 @@ def _ball_images(session, track: Track, spin: dict, i: int, flight: int) -> str 
     """Events of window ``i`` as recorded and turned back by its estimated spin, axis drawn."""
     import matplotlib.pyplot as plt
 
-    from spin.estimate import SpinInputError, prepare
-    from spin.objective import warp
+    from capture.pipeline.ball_view import ball_view
 
-    t0, t1 = int(spin["t_start_us"][i]), int(spin["t_end_us"][i])
-    cx, cy, r, vx, vy = track.at(t0, flight=flight)
-    events = session.events(t_start_us=t0, t_end_us=t1)
-    try:
-        ev, _ = prepare(events, (cx, cy), r, t0_us=t0, velocity_px_s=(vx, vy), max_events=30_000)
-    except SpinInputError:
+    view = ball_view(session, track, spin, i, flight=flight)
+    if view is None:
         return None
-    w = np.asarray(spin["axis"][i], float) * float(spin["omega_rad_s"][i])
-    q = warp(ev, w, (vx, vy))
-    moved_x = ev.x_px - vx * ev.s_s
-    moved_y = ev.y_px - vy * ev.s_s
     fig, axes = plt.subplots(1, 2, figsize=(7, 3.6))
-    lim = 1.15 * r
-    for ax, (x, y), title in ((axes[0], (moved_x, moved_y), "ball events as recorded"),
-                              (axes[1], (q[0], q[1]), f"turned back by {spin['rps'][i] * 60:.0f} rpm")):
-        h, _, _ = np.histogram2d(y, x, bins=96, range=[[-lim, lim], [-lim, lim]])
+    lim, r = view.half_px, view.r_px
+    for ax, h, title in ((axes[0], view.recorded, "ball events as recorded"),
+                         (axes[1], view.turned, f"turned back by {spin['rps'][i] * 60:.0f} rpm")):
         ax.imshow(h, cmap="magma", extent=(-lim, lim, lim, -lim), interpolation="nearest")
         ax.add_patch(plt.Circle((0, 0), r, fill=False, color="#56B4E9", lw=0.8))
         ax.set_title(title, fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
-    ax_x, ax_y, ax_z = np.asarray(spin["axis"][i], float)
+    ax_x, ax_y, ax_z = view.axis
     axes[1].annotate("", xy=(ax_x * r, ax_y * r), xytext=(0, 0),
                      arrowprops=dict(arrowstyle="->", color="#F0E442", lw=2))
     axes[1].text(0.02, 0.02, f"axis ({ax_x:+.2f}, {ax_y:+.2f}, {ax_z:+.2f})", color="w", fontsize=8,
@@ -152,7 +142,7 @@ def write_html(session_path, out_path, *, ball_diameter_m: float | None = None, 
     import matplotlib
 
     matplotlib.use("Agg")
-    from capture.pipeline.replay import session_results
+    from capture.results import session_results
     from capture.session import open_session
 
     s = open_session(session_path)

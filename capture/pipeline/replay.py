@@ -29,13 +29,13 @@ from tqdm import tqdm
 
 import spin
 from calib.intrinsics import Intrinsics
-from calib.store import load_calibration
+from calib.store import event_camera
 from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
-from capture.results import flight_table, window_table
+from capture.pipeline.ball_view import ball_view
 from capture.review import write_rrd
-from capture.session import Session, open_session, software_version, update_session
+from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 
 BATCH_EVENTS = 1 << 20
@@ -243,23 +243,6 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
         yield t_us, img
 
 
-def event_camera(session) -> Intrinsics | None:
-    """The event camera's intrinsics from a session's calibration (attrs ``calibration``, see
-    ``calib.store.load_calibration``), or None when it has none.
-
-    Raises
-    ------
-    ValueError
-        When the calibrated camera's image size is not the session's sensor size.
-    """
-    cameras = load_calibration(session.attrs)[1]
-    camera = None if cameras is None else cameras.event
-    if camera is not None and (camera.width, camera.height) != (session.width, session.height):
-        raise ValueError(f"calibration: the event camera is calibrated for {camera.width}x{camera.height} px, "
-                         f"the session's sensor is {session.width}x{session.height} px")
-    return camera
-
-
 def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
                   on_part=None) -> Track:
     """Detect and track the ball over a session, streaming its events in batches.
@@ -465,54 +448,6 @@ def store_results(session_path, track: Track, spin_columns: dict, options: Repla
     writer.close(analysis=analysis_stamp(options))
 
 
-def stored_ball(session) -> tuple[str | None, float | None]:
-    """The ball ``(type, diameter_m)`` recorded with a session (attrs ``ball``, written by
-    ``--ball/--ball-diameter`` of ``capture.run``, ``capture.replay`` and ``capture.ingest raw``);
-    None for what it does not say."""
-    ball = session.attrs.get("ball")
-    if not isinstance(ball, dict):
-        return None, None
-    d, kind = ball.get("diameter_m"), ball.get("type")
-    diameter = float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 else None
-    return (kind if isinstance(kind, str) else None), diameter
-
-
-def stored_ball_diameter_m(session) -> float | None:
-    """The ball's diameter (m) recorded with a session (see :func:`stored_ball`), or None."""
-    return stored_ball(session)[1]
-
-
-def session_results(session, *, ball_diameter_m: float | None = None,
-                    ball_type: str | None = None) -> tuple[dict, dict]:
-    """``(flights, windows)`` tables of an analysed session (see :mod:`capture.results`).
-
-    Parameters
-    ----------
-    session : path or capture.session.Session
-        The session's directory, or the session already open.
-    ball_diameter_m : float, optional
-        The ball's diameter, m, for the distance and speed columns (with the event camera's
-        calibration). Default: the ball recorded with the session (:func:`stored_ball`), if any.
-    ball_type : str, optional
-        The ball's name for the ``ball`` column, with ``ball_diameter_m``.
-
-    Raises
-    ------
-    ValueError
-        The session holds no track (it was not analysed yet).
-    """
-    s = session if isinstance(session, Session) else open_session(session)
-    track = Track.from_columns(s.track())
-    if len(track) == 0 and "track" not in s.root:
-        raise ValueError(f"{s.path}: not analysed yet (no ball track); run: python -m capture.replay {s.path}")
-    spin_columns = s.spin()
-    if ball_diameter_m is None:
-        ball_type, ball_diameter_m = stored_ball(s)
-    camera = event_camera(s) if ball_diameter_m else None
-    flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type)
-    return flights, window_table(track, spin_columns)
-
-
 @dataclass
 class ReplayResult:
     """What a replay found: the track, the spin columns and where the review file went."""
@@ -546,5 +481,5 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     store_results(session_path, track, spin_columns, options)
     if rrd_path is not None:
-        write_rrd(session_path, rrd_path, progress=progress)
+        write_rrd(session_path, rrd_path, progress=progress, ball_view=ball_view)
     return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)

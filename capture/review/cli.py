@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from capture import cliargs
+from capture.pipeline.ball_view import ball_view
 from capture.review.layout import DEFAULT_MAX_EVENTS_PER_SLICE, DEFAULT_SLICE_US
 from capture.review.offline import write_rrd
 
@@ -30,7 +31,8 @@ def main(argv=None) -> int:
 
     def body() -> None:
         stats = write_rrd(args.session, args.rrd, slice_us=args.slice_us,
-                          max_events_per_slice=args.max_events_per_slice, progress=not args.quiet)
+                          max_events_per_slice=args.max_events_per_slice, progress=not args.quiet,
+                          ball_view=ball_view)
         print(f"{args.rrd}: {stats.n_events_logged} of {stats.n_events} events in {stats.n_slices} slices "
               f"({stats.n_slices_decimated} decimated), {stats.n_track_rows} track rows, "
               f"{stats.n_spin_rows} spin estimates, {stats.n_frames} frames")

@@ -11,9 +11,10 @@ import rerun as rr
 from tqdm import tqdm
 
 from capture.events import Track
-from capture.review.layout import (DEFAULT_MAX_EVENTS_PER_SLICE, DEFAULT_SLICE_US, FRAMES_IMAGE, VIDEO_ASSET,
+from capture.results import session_results
+from capture.review.layout import (BALL_AXIS, BALL_IMAGE, BALL_RIM, DEFAULT_MAX_BALL_EVENTS_PER_SLICE,
+                                   DEFAULT_MAX_EVENTS_PER_SLICE, DEFAULT_SLICE_US, FRAMES_IMAGE, VIDEO_ASSET,
                                    blueprint, circle_mapping, session_recording_id, time_column)
-from capture.results import flight_table, format_flight_table
 from capture.review.logger import ReviewLogger, ReviewStats, check_rrd_path, open_recording
 from capture.session import Session, SessionError, open_session
 
@@ -21,9 +22,11 @@ log = logging.getLogger(__name__)
 
 
 def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
-              max_events_per_slice: int = DEFAULT_MAX_EVENTS_PER_SLICE, batch_events: int = 1 << 20,
+              max_events_per_slice: int = DEFAULT_MAX_EVENTS_PER_SLICE,
+              max_ball_events_per_slice: int = DEFAULT_MAX_BALL_EVENTS_PER_SLICE, batch_events: int = 1 << 20,
               event_to_frame: Callable[[np.ndarray], np.ndarray] | None = None, jpeg_quality: int = 80,
-              video_max_bytes: int = 2 << 30, frame_stride: int = 1, progress: bool = True) -> ReviewStats:
+              video_max_bytes: int = 2 << 30, frame_stride: int = 1, progress: bool = True,
+              ball_view: Callable | None = None) -> ReviewStats:
     """Write a session's review as a Rerun ``.rrd`` file (streamed, bounded memory).
 
     Parameters
@@ -35,7 +38,9 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     slice_us : int
         Event slice length, µs.
     max_events_per_slice : int
-        Cap on logged events per slice; above it a slice is decimated by a stride.
+        Cap on logged events per slice away from the ball; above it they are decimated by a stride.
+    max_ball_events_per_slice : int
+        Cap on logged events per slice on the ball (within 1.25 radii of the track's circle).
     batch_events : int
         Events read from the store per step (bounds memory).
     event_to_frame : callable, optional
@@ -50,6 +55,10 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
         When frames are logged as images from a video, log every ``frame_stride``-th.
     progress : bool
         Show a tqdm progress bar over the events.
+    ball_view : callable, optional
+        ``ball_view(session, track, spin, i, flight=f)`` gives the ball close-up of spin window
+        ``i`` (:func:`capture.pipeline.ball_view.ball_view`, which the pipeline passes; the review
+        layer does not run spin code itself); without it the review has no close-up view.
 
     Returns
     -------
@@ -67,24 +76,28 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     rrd_path = check_rrd_path(rrd_path)
     frames = _frames_info(session)
     has_images = frames["image"] is not None or frames["video"] is not None
+    track = Track.from_columns(session.track())
+    spin = session.spin()
+    first = (int(track.t_us[track.flight == track.flight_ids()[0]][0]),
+             int(track.t_us[track.flight == track.flight_ids()[0]][-1])) if len(track) else None
     rec = open_recording(session_recording_id(session))
     rec.save(rrd_path)
     try:
-        rec.send_blueprint(blueprint(frames=has_images, width=session.width, height=session.height, follow=False))
+        rec.send_blueprint(blueprint(frames=has_images, width=session.width, height=session.height, follow=False,
+                                     first_flight_us=first, ball_view=ball_view is not None and len(spin["rps"]) > 0))
         rec.send_recording_name(session.path.name)
         lg = ReviewLogger(rec, slice_us=slice_us, max_events_per_slice=max_events_per_slice,
-                          width=session.width, height=session.height)
+                          max_ball_events_per_slice=max_ball_events_per_slice,
+                          width=session.width, height=session.height, ball_track=track)
         with tqdm(total=session.n_events, unit="ev", unit_scale=True, disable=not progress,
                   desc=f"review {session.path.name}") as bar:
             for batch in session.iter_events(batch_events):
                 lg.events(batch)
                 bar.update(len(batch))
             lg.flush_events()
-        track = Track.from_columns(session.track())
         lg.track(track)
-        spin = session.spin()
-        lg.spin(spin, track)
-        lg.flights(format_flight_table(flight_table(track, spin)))
+        lg.spin(spin, track, clear_after_flights=True)
+        _log_results(lg, session, track, spin, ball_view)
         mapping = event_to_frame or circle_mapping(session.attrs)
         if frames["video"] is not None:
             _log_video(lg, frames["video"], frames["t_us"], video_max_bytes=video_max_bytes,
@@ -92,6 +105,11 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
         elif frames["image"] is not None:
             for i, t in enumerate(frames["t_us"]):
                 lg.frame_image(int(t), frames["image"][i], jpeg_quality)
+        if has_images and mapping is None:
+            width = int(session.attrs.get("frame_camera", {}).get("width") or session.width)
+            lg.frames_note("no ball circle: cameras not calibrated", at_px=(width / 2, 24.0))
+            lg.text("GoPro view: no ball circle, the session has no calibration between the event camera and the "
+                    "GoPro (calib.store_calibration)", t_us=0, note=False)
         if has_images and mapping is not None and len(frames["t_us"]) and len(track):
             lg.frame_circles(frames["t_us"], track, mapping)
         rec.flush()
@@ -100,6 +118,31 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     for note in lg.stats.notes:
         log.info("%s: %s", rrd_path.name, note)
     return lg.stats
+
+
+def _log_results(lg: ReviewLogger, session: Session, track: Track, spin: dict, ball_view: Callable | None) -> None:
+    """The flight table, the simulated truth of a demo session, and (with ``ball_view``) a ball
+    close-up per spin window."""
+    try:
+        flights, windows = session_results(session)
+    except ValueError as exc:  # not analysed, or a calibration for another sensor
+        lg.text(f"no flight table: {exc}", level="WARN")
+        return
+    lg.flights(flights)
+    demo = session.attrs.get("demo")
+    if isinstance(demo, dict) and "truth_rps" in demo and "truth_axis" in demo and len(track):
+        lg.truth(float(demo["truth_rps"]), demo["truth_axis"], track)
+    if ball_view is None:
+        return
+    t_mid = (np.asarray(spin["t_start_us"], np.int64) + np.asarray(spin["t_end_us"], np.int64)) // 2
+    for i in range(len(t_mid)):
+        if windows["flight"][i] < 0:
+            continue
+        view = ball_view(session, track, spin, i, flight=int(windows["flight"][i]))
+        if view is not None:
+            lg.ball_view(int(t_mid[i]), view, trusted=bool(windows["trusted"][i]))
+    if len(track):
+        lg.clear_after_flights(track, [BALL_IMAGE, BALL_RIM, BALL_AXIS])
 
 
 def _open(session_or_path) -> Session:
