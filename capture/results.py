@@ -122,15 +122,26 @@ def _spread_sigma(values: np.ndarray, window_sigmas: np.ndarray) -> float:
     return float(np.nanmax([spread, own / np.sqrt(n)]))
 
 
-def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float) -> dict[str, float]:
+RADIUS_SIGMA_PX = 0.6
+"""Uncertainty (1 sigma, px) of a tracked ball radius as a measure of the ball's silhouette: the
+rim fit came out 0.5-0.8 px larger than the silhouette on simulated flights of 12-50 px radius."""
+DIAMETER_SIGMA_REL = 0.015
+"""Relative uncertainty (1 sigma) of a preset ball diameter: match balls vary by about 1.5 %."""
+
+
+def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float, *,
+                    radius_sigma_px: float = RADIUS_SIGMA_PX,
+                    diameter_sigma_rel: float = DIAMETER_SIGMA_REL) -> dict[str, float]:
     """The ball's distance and 3D velocity over a flight from its track and its known size.
 
     Each track row puts the ball's centre on the ray through its image centre (``camera.rays``:
     lens distortion undone) at depth ``Z = f * D / (2 r)``: the apparent radius gives the distance.
     Each coordinate is fitted over the flight with a quadratic in time (gravity in any direction;
-    a line for fewer than 5 rows) and the velocity is taken at the middle of the flight. Its
-    sigma comes from the fit's residuals (radius noise moves ``Z`` most), propagated to the speed.
-    A bias of the ball's diameter or of the fitted radius scales distance and speed alike.
+    a line for fewer than 5 rows) and the velocity is taken at the middle of the flight.
+
+    Its sigma has two parts. The fit's residuals (radius noise moves ``Z`` most), propagated to
+    the speed; and the scale, which moves distance and speed alike: a bias of the radius
+    (``radius_sigma_px`` over the median radius) and of the ball's diameter (``diameter_sigma_rel``).
 
     Parameters
     ----------
@@ -139,18 +150,20 @@ def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float) ->
     camera : object with ``focal_px`` and ``rays(uv_px) -> (N, 3)``
         The event camera (:class:`calib.intrinsics.Intrinsics`).
     ball_diameter_m : float
+    radius_sigma_px, diameter_sigma_rel : float
+        The scale's uncertainties (1 sigma): px, and relative.
 
     Returns
     -------
     dict
-        ``distance_m`` (from the camera to the ball's centre at mid-flight), ``velocity_m_s`` (3,
-        camera frame), ``speed_m_s``, ``speed_sigma_m_s`` (1 sigma; NaN with fewer than 3 rows),
-        ``speed_los_m_s`` (along the line of sight, > 0 away from the camera) and
-        ``speed_across_m_s`` (across it); NaN where not measurable (fewer than 2 rows).
+        ``distance_m`` (from the camera to the ball's centre at mid-flight), ``distance_sigma_m``,
+        ``velocity_m_s`` (3, camera frame), ``speed_m_s``, ``speed_sigma_m_s`` (1 sigma; NaN with
+        fewer than 3 rows), ``speed_los_m_s`` (along the line of sight, > 0 away from the camera)
+        and ``speed_across_m_s`` (across it); NaN where not measurable (fewer than 2 rows).
     """
     nan = float("nan")
-    out = {"distance_m": nan, "velocity_m_s": np.full(3, nan), "speed_m_s": nan, "speed_sigma_m_s": nan,
-           "speed_los_m_s": nan, "speed_across_m_s": nan}
+    out = {"distance_m": nan, "distance_sigma_m": nan, "velocity_m_s": np.full(3, nan), "speed_m_s": nan,
+           "speed_sigma_m_s": nan, "speed_los_m_s": nan, "speed_across_m_s": nan}
     t = (np.asarray(t_us, np.float64) - np.mean(t_us)) * 1e-6
     r = np.asarray(r_px, np.float64)
     ok = r > 0
@@ -172,8 +185,10 @@ def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float) ->
         sigma = float(np.sqrt(np.sum((velocity / speed) ** 2 * var_v))) if speed > 0 else float(np.sqrt(var_v.max()))
     distance = float(np.linalg.norm(position))
     los = float(velocity @ position / distance)
-    out.update(distance_m=distance, velocity_m_s=velocity, speed_m_s=speed, speed_sigma_m_s=sigma,
-               speed_los_m_s=los, speed_across_m_s=float(np.sqrt(max(speed ** 2 - los ** 2, 0.0))))
+    scale = float(np.hypot(radius_sigma_px / np.median(r[ok]), diameter_sigma_rel))
+    out.update(distance_m=distance, distance_sigma_m=distance * scale, velocity_m_s=velocity, speed_m_s=speed,
+               speed_sigma_m_s=float(np.hypot(sigma, speed * scale)), speed_los_m_s=los,
+               speed_across_m_s=float(np.sqrt(max(speed ** 2 - los ** 2, 0.0))))
     return out
 
 
@@ -191,7 +206,7 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     Columns: ``flight``, ``ball``, ``t_start_s``, ``t_end_s``, ``duration_ms``, ``n_windows``,
     ``n_trusted``, ``trusted_share``, ``rpm``, ``rpm_sigma``, ``rps``, ``axis_x``, ``axis_y``,
     ``axis_z``, ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``,
-    ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``speed_m_s`` (3D),
+    ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``distance_sigma_m``, ``speed_m_s`` (3D),
     ``speed_sigma_m_s``, ``speed_km_h``, ``speed_los_m_s`` (along the line of sight, > 0 away),
     ``speed_across_m_s``.
     """
@@ -226,8 +241,8 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
                        topspin_rpm=60.0 * top, sidespin_rpm=60.0 * side, gyro_rpm=60.0 * gyro,
                        efficiency=float(np.hypot(top, side) / rate) if rate > 0 else nan,
                        tilt=tilt_clock(top, side))
-        motion = {"distance_m": nan, "speed_m_s": nan, "speed_sigma_m_s": nan, "speed_los_m_s": nan,
-                  "speed_across_m_s": nan}
+        motion = {"distance_m": nan, "distance_sigma_m": nan, "speed_m_s": nan, "speed_sigma_m_s": nan,
+                  "speed_los_m_s": nan, "speed_across_m_s": nan}
         if camera is not None and ball_diameter_m:
             found = flight_velocity(t, track.cx[sel], track.cy[sel], track.r[sel], camera, ball_diameter_m)
             motion = {k: found[k] for k in motion}
@@ -236,7 +251,7 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     names = ["flight", "ball", "t_start_s", "t_end_s", "duration_ms", "n_windows", "n_trusted", "trusted_share",
              "rpm", "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm",
              "sidespin_rpm", "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m",
-             "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s"]
+             "distance_sigma_m", "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s"]
     return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball") else None) for k in names}
 
 

@@ -141,16 +141,21 @@ def test_3d_velocity_from_the_track_and_the_ball_size(v_m_s):
 
 def test_3d_speed_sigma_means_what_it_says():
     """Radius noise of 0.3 px on a 20 px ball: over 300 noisy flights the error is within 1 sigma
-    about 68 % of the time and within 3 sigma almost always."""
+    (the fit's part) about 68 % of the time and within 3 sigma almost always; the scale's part
+    (radius bias, ball size) adds to it."""
     cam, rng = _camera(), np.random.default_rng(7)
     z = []
     for _ in range(300):
         t, cx, cy, r, mid = _flight_rows((-0.8, 0.0, 5.0), (10.0, -2.0, 3.0), cam, 0.21, n=40, dt_s=0.004,
                                          r_noise_px=0.3, c_noise_px=0.1, rng=rng)
-        out = flight_velocity(t, cx, cy, r, cam, 0.21)
+        out = flight_velocity(t, cx, cy, r, cam, 0.21, radius_sigma_px=0.0, diameter_sigma_rel=0.0)  # the fit's part
         z.append((out["speed_m_s"] - np.linalg.norm(mid)) / out["speed_sigma_m_s"])
     z = np.abs(np.array(z))
     assert 0.58 < np.mean(z < 1) < 0.78 and np.mean(z < 3) > 0.97
+    both = flight_velocity(t, cx, cy, r, cam, 0.21)
+    scale = np.hypot(0.6 / np.median(r), 0.015)
+    assert both["speed_sigma_m_s"] == pytest.approx(np.hypot(out["speed_sigma_m_s"], both["speed_m_s"] * scale))
+    assert both["distance_sigma_m"] == pytest.approx(both["distance_m"] * scale)
 
 
 def test_csv_reads_back_with_pandas_and_keeps_units_in_the_names(tmp_path):
@@ -278,3 +283,26 @@ def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path, c
     assert report_main([str(path), "--ball", "tennis"]) == 0  # an explicit ball wins, named in the table
     row = capsys.readouterr().out.splitlines()[1].split()
     assert row[0] == "tennis" and float(row[-4]) == pytest.approx(5.0 * 0.067 / 0.21, abs=0.05)
+
+
+@pytest.mark.parametrize("depth_m_s", [-3.0, 4.0])
+def test_3d_speed_of_a_simulated_looming_or_receding_flight_through_the_tracker(depth_m_s):
+    """A volleyball flying across a pinhole camera's view and towards (-) or away from (+) it: the
+    tracker's circles and the ball's size give its 3D velocity at mid-flight within 3 sigma."""
+    rec = sim.flight(texture="volleyball", rps=10.0, radius_px=28.0, width=640, height=480, duration_s=0.2,
+                     start_px=(120.0, 200.0), velocity_px_s=(1500.0, -300.0), projection="pinhole", focal_px=800.0,
+                     depth_velocity_m_s=depth_m_s, distractors=(), noise_rate_hz=0.2, hot_pixels=0, seed=4)
+    truth = rec.truth
+    cam = _camera(f=800.0, cx=truth["principal_px"][0], cy=truth["principal_px"][1])
+    track = track_ball(rec.events, width=640, height=480)
+    (fl,) = track.flight_ids()
+    sel = track.flight == fl
+    out = flight_velocity(track.t_us[sel], track.cx[sel], track.cy[sel], track.r[sel], cam, 0.21)
+    # the ball's 3D velocity in the simulator: image velocity at the start depth, gravity down, depth speed
+    ray = np.r_[(np.asarray(truth["start_px"]) - truth["principal_px"]) / 800.0, 1.0]
+    z0 = 0.105 / np.sin(np.arctan(28.0 / 800.0)) * ray[2] / np.linalg.norm(ray)
+    t_mid_s = (np.mean(track.t_us[sel][[0, -1]]) - truth["t0_us"]) * 1e-6
+    v = np.array([1500.0 * z0 / 800.0, (-300.0 + truth["gravity_px_s2"] * t_mid_s) * z0 / 800.0, depth_m_s])
+    assert np.sign(out["speed_los_m_s"]) == np.sign(depth_m_s)
+    assert abs(out["speed_m_s"] - np.linalg.norm(v)) < max(3 * out["speed_sigma_m_s"], 0.02 * np.linalg.norm(v))
+    np.testing.assert_allclose(out["velocity_m_s"], v, atol=max(0.4, 3 * out["speed_sigma_m_s"]))
