@@ -244,8 +244,9 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
         w.append_events(rec.events)
     replay(path, options=ReplayOptions(workers=1), progress=False)
     out = tmp_path / "report.html"
-    assert report_main([str(path), "--html", str(out)]) == 0
+    assert report_main([str(path), "--html", str(out), "--ball", "volleyball"]) == 0
     doc = out.read_text()
+    assert "<td>volleyball</td>" in doc and "no calibration of the event camera" in doc  # the ball, and why no speed
     assert doc.startswith("<!DOCTYPE html>") and "</html>" in doc
     # nothing fetched from elsewhere: no scripts, no links, every image inline
     assert "<script" not in doc and "http://" not in doc and "https://" not in doc

@@ -142,7 +142,7 @@ def write_html(session_path, out_path, *, ball_diameter_m: float | None = None, 
     import matplotlib
 
     matplotlib.use("Agg")
-    from capture.results import session_results
+    from capture.results import session_results, stored_ball
     from capture.session import open_session
 
     s = open_session(session_path)
@@ -158,6 +158,11 @@ def write_html(session_path, out_path, *, ball_diameter_m: float | None = None, 
              f"{len(flights['flight'])} flight(s), {int(np.isfinite(flights['rpm'].astype(float)).sum())} with a "
              "trusted spin.</p>",
              _table(flights),
+             *(["<p class='note'>The session has no calibration of the event camera: no distances or speeds "
+                "(calib.store_calibration).</p>"]
+               if len(flights["flight"]) and (ball_diameter_m or stored_ball(s)[1])
+               and np.isnan(flights["speed_m_s"].astype(float)).all()
+               else []),
              "<p class='note'>rpm: median of the trusted windows (confidence ≥ 0.5) ± its standard error. Topspin "
              "(&gt; 0) / backspin (&lt; 0), sidespin (&gt; 0: counter-clockwise seen from above) and gyro spin "
              "are in the flight's frame (direction of flight = the image velocity, up = the image's up). "
