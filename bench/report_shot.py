@@ -25,6 +25,15 @@ from capture.results import format_flight_table, session_results
 from capture.run import main as run_main
 
 
+def demo_session(out: Path) -> Path:
+    """``out/demo_session``, recorded by ``capture.run --demo`` unless it is there (``out`` is created)."""
+    out.mkdir(parents=True, exist_ok=True)
+    session = out / "demo_session"
+    if not (session / "zarr.json").exists():
+        run_main(["--demo", "--out", str(session), "--viewer", "none", "--quiet"])
+    return session
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="report_shot", help="working directory")
@@ -32,10 +41,7 @@ def main(argv=None) -> int:
                     help="headless browser (Chromium)")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    session = out / "demo_session"
-    if not (session / "zarr.json").exists():
-        run_main(["--demo", "--out", str(session), "--viewer", "none", "--quiet"])
+    session = demo_session(out)
     t0 = time.perf_counter()
     print(format_flight_table(session_results(session)[0]))
     t_table = time.perf_counter() - t0

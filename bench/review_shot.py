@@ -30,8 +30,8 @@ from pathlib import Path
 
 from capture.pipeline.ball_view import ball_view
 from capture.review import write_rrd
-from capture.run import main as run_main
 from capture.session import open_session
+from report_shot import demo_session  # bench/, on the path when run as a script
 
 
 def _free_port() -> int:
@@ -81,10 +81,7 @@ def main(argv=None) -> int:
     ap.add_argument("--browser", default=shutil.which("chromium") or shutil.which("chromium-browser"))
     args = ap.parse_args(argv)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    session = out / "demo_session"
-    if not (session / "zarr.json").exists():
-        run_main(["--demo", "--out", str(session), "--viewer", "none", "--quiet"])
+    session = demo_session(out)
     s = open_session(session)
     t0 = time.perf_counter()
     n = sum(len(b) for b in s.iter_events(1 << 20))

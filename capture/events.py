@@ -285,6 +285,17 @@ class Track:
         _, first = np.unique(self.flight, return_index=True)
         return self.flight[np.sort(first)]
 
+    def spans(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each flight (:meth:`flight_ids` order) with the times (µs) of its first and last update.
+
+        Returns
+        -------
+        flight : ndarray of int32, t_first_us, t_last_us : ndarray of int64, each shape (F,)
+        """
+        ids = self.flight_ids()
+        times = [self.t_us[self.flight == f] for f in ids]
+        return ids, np.array([t[0] for t in times], np.int64), np.array([t[-1] for t in times], np.int64)
+
     @classmethod
     def concat(cls, tracks) -> Track:
         """Rows of ``tracks`` one after another (an empty track if there are none)."""

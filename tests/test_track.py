@@ -70,3 +70,12 @@ def test_windows_lengthen_where_the_ball_fires_few_events():
     joined = parts[0] + parts[1]
     assert [w.t_start_us for w in joined] == [w.t_start_us for w in wins]
     assert all(np.array_equal(a.events, b.events) for a, b in zip(joined, wins))
+
+
+def test_flight_spans_in_order_of_appearance():
+    t = np.array([0, 10, 20, 30, 40, 50])
+    track = Track(t_us=t, cx=np.zeros(6), cy=np.zeros(6), r=np.ones(6), vx=np.zeros(6), vy=np.zeros(6),
+                  score=np.ones(6), flight=[3, 3, 1, 1, 1, 7])
+    ids, first, last = track.spans()
+    assert list(ids) == [3, 1, 7] and list(first) == [0, 20, 50] and list(last) == [10, 40, 50]
+    assert [len(a) for a in Track.empty().spans()] == [0, 0, 0]

@@ -109,6 +109,7 @@ class ReviewLogger:
         self.cap = int(max_events_per_slice)
         self.ball_cap = int(max_ball_events_per_slice)
         self.ball_track = ball_track if ball_track is not None and len(ball_track) else None
+        self._ball_spans = self.ball_track.spans() if self.ball_track is not None else None
         self.stats = ReviewStats()
         self._carry = np.zeros(0, EVENT_DTYPE)
         self._last_sid: int | None = None
@@ -225,11 +226,10 @@ class ReviewLogger:
         track = self.ball_track
         if track is None:
             return None
-        t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
-        flights = [f for f in track.flight_ids()
-                   if track.t_us[track.flight == f][0] <= t1 and track.t_us[track.flight == f][-1] >= t0]
+        ids, first, last = self._ball_spans
+        flights = ids[(first <= ev["t"][-1]) & (last >= ev["t"][0])]
         inside = np.zeros(len(ev), bool)
-        if not flights:
+        if len(flights) == 0:
             return inside
         cx, cy, r, valid = track.select(np.isin(track.flight, flights)).circles_at(ev["t"])
         d2 = (ev["x"][valid] - cx[valid]) ** 2 + (ev["y"][valid] - cy[valid]) ** 2
@@ -259,7 +259,7 @@ class ReviewLogger:
         last row, unless the track has a row before then (offline, where flights are complete)."""
         step = np.diff(track.t_us)
         delay = max(self.slice_us, 2 * int(np.median(step)) if len(step) else 0)
-        ends = np.array([track.t_us[track.flight == f][-1] for f in track.flight_ids()], np.int64)
+        ends = track.spans()[2]
         after = np.searchsorted(track.t_us, ends, side="right")
         next_t = np.r_[track.t_us, np.iinfo(np.int64).max][after]
         clear_t = (ends + delay)[next_t > ends + delay]
@@ -358,13 +358,12 @@ class ReviewLogger:
         """The simulated truth (``rps`` rev/s about unit ``axis``, camera frame) as reference lines
         over each flight of ``track``: rpm, and topspin / sidespin / gyro in the flight's frame."""
         w = np.asarray(axis, np.float64) * float(rps)
-        for fl in track.flight_ids():
+        for fl, t0, t1 in zip(*track.spans()):
             sel = track.flight == fl
-            t0, t1 = int(track.t_us[sel][0]), int(track.t_us[sel][-1])
-            self._span(PLOT_RPM_TRUTH, t0, t1, 60.0 * float(rps))
+            self._span(PLOT_RPM_TRUTH, int(t0), int(t1), 60.0 * float(rps))
             parts = spin_components(w, (np.median(track.vx[sel]), np.median(track.vy[sel])))
             for name, value in zip(_SPIN_PARTS, parts):
-                self._span(f"{PLOT_SPIN_PARTS}/truth_{name}_rpm", t0, t1, 60.0 * value)
+                self._span(f"{PLOT_SPIN_PARTS}/truth_{name}_rpm", int(t0), int(t1), 60.0 * value)
         for name in _SPIN_PARTS:
             self.rec.log(f"{PLOT_SPIN_PARTS}/truth_{name}_rpm",
                          rr.SeriesLines(colors=[TRUTH_COLOR], names=[f"truth {name}"]), static=True)

@@ -78,8 +78,8 @@ def write_rrd(session_or_path, rrd_path, *, slice_us: int = DEFAULT_SLICE_US,
     has_images = frames["image"] is not None or frames["video"] is not None
     track = Track.from_columns(session.track())
     spin = session.spin()
-    first = (int(track.t_us[track.flight == track.flight_ids()[0]][0]),
-             int(track.t_us[track.flight == track.flight_ids()[0]][-1])) if len(track) else None
+    _, starts, ends = track.spans()
+    first = (int(starts[0]), int(ends[0])) if len(track) else None
     rec = open_recording(session_recording_id(session))
     rec.save(rrd_path)
     try:
