@@ -12,7 +12,10 @@ killed (SIGKILL) at a random moment while streaming. Then:
 - lag: sensor time from the store's last committed event to the last event received, s
   (the pace is the recorded one, so sensor time is wall time): what the kill lost from the
   store (the RAW file keeps it);
-- prefix: whether the store's events are exactly the first events received.
+- prefix: whether the store's events are exactly the first events received;
+- recovered: whether ``capture.ingest.recover_session`` (what ``capture.replay`` runs first on
+  such a session) then made the store exactly the events received: nothing lost, none twice;
+  recover s: the longest it took, s.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from evk_bench import synth_stream  # noqa: E402
 
 from capture import raw  # noqa: E402
+from capture.ingest import recover_session  # noqa: E402
 from capture.session import open_session  # noqa: E402
 
 
@@ -57,9 +61,13 @@ def one_kill(src: Path, out: Path, seconds: float, rng: random.Random) -> dict:
     store = s.events()
     t_recv = int(received["t"][-1]) if len(received) else 0
     t_store = int(store["t"][-1]) if n else (int(received["t"][0]) if len(received) else 0)
-    return {"received": len(received), "stored": n,
-            "prefix": bool(n <= len(received) and np.array_equal(store, received[:n])),
-            "lag_s": (t_recv - t_store) * 1e-6}
+    prefix = bool(n <= len(received) and np.array_equal(store, received[:n]))
+    t = time.perf_counter()
+    recover_session(out, progress=False)
+    recover_s = time.perf_counter() - t
+    return {"received": len(received), "stored": n, "prefix": prefix,
+            "lag_s": (t_recv - t_store) * 1e-6, "recover_s": recover_s,
+            "recovered": bool(np.array_equal(open_session(out).events(), received))}
 
 
 def main() -> None:
@@ -71,7 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = random.Random(args.seed)
     print(f"{'rate Mev/s':>10} {'kills':>5} {'prefix':>6} {'lag median s':>12} {'lag p90 s':>9} "
-          f"{'lag max s':>9} {'> 0.5 s':>7} {'stored/received':>15}")
+          f"{'lag max s':>9} {'> 0.5 s':>7} {'stored/received':>15} {'recovered':>9} {'recover s':>9}")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for rate in [float(r) for r in args.rates_mev_s.split(",")]:
@@ -85,7 +93,8 @@ def main() -> None:
             lag = np.array([r["lag_s"] for r in rows])
             stored = sum(r["stored"] for r in rows) / max(1, sum(r["received"] for r in rows))
             print(f"{rate:10g} {len(rows):5d} {sum(r['prefix'] for r in rows):6d} {np.median(lag):12.3f} "
-                  f"{np.percentile(lag, 90):9.3f} {lag.max():9.3f} {int((lag > 0.5).sum()):7d} {stored:15.3f}",
+                  f"{np.percentile(lag, 90):9.3f} {lag.max():9.3f} {int((lag > 0.5).sum()):7d} {stored:15.3f} "
+                  f"{sum(r['recovered'] for r in rows):9d} {max(r['recover_s'] for r in rows):9.2f}",
                   flush=True)
     print(f"(lag: the store's last event behind the last event received in events.raw; cpu count "
           f"{os.cpu_count()}, load {os.getloadavg()[0]:.1f})")

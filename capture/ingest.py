@@ -4,6 +4,8 @@
 - :func:`attach_video`: copy an MP4 into the session and store its frame times on the event
   clock (fitted by :func:`fit_time_map`: sync box, else event activity against frame motion).
 - :func:`session_from_raw`: both, for a bare RAW file and its video.
+- :func:`recover_session`: complete the store of a recording cut short (killed, crashed) from
+  the RAW file the recorder wrote beside it, which holds every byte received.
 
 The video file stays an MP4 (copied into ``SESSION/gopro/``); the store keeps
 its per-frame times already mapped onto the event camera's clock
@@ -14,23 +16,27 @@ Command line::
 
     python -m capture.ingest raw recording.raw SESSION_DIR [--time-shift] [--overwrite]
     python -m capture.ingest video SESSION_DIR GX010042.MP4 [--led-roi X0,Y0,X1,Y1] [--exposure S]
+    python -m capture.ingest recover SESSION_DIR
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from calib import store, sync
 from capture.cliargs import add_ball_args, ball_attr, box, print_fields, run_command
+from capture.events import EVENT_DTYPE
 from capture.gopro import chapter_paths, gpmf, read_video
 from capture.gopro.mp4 import gpmf_samples
 from capture.raw import RawFormatError, RawReader, scan
 from capture.raw.stream import DEFAULT_CHUNK_BYTES
-from capture.session import StoreBehind, create_session, open_session, update_session
+from capture.session import SessionError, StoreBehind, create_session, open_session, update_session
 
 def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool = False,
                 chunk_bytes: int = DEFAULT_CHUNK_BYTES, progress: bool = True, ball: dict | None = None) -> dict:
@@ -70,6 +76,112 @@ def convert_raw(path, session_dir, *, time_shift: bool = False, overwrite: bool 
     finally:
         writer.close()
     return {"session": str(session_dir), **summary, "damage": reader.damage_message()}
+
+
+def recover_session(session_dir, *, progress: bool = True, chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> dict:
+    """Complete the store of a recording cut short (killed, crashed, power lost) from its RAW file.
+
+    The recorder writes every byte received to the RAW file before decoding it; its store
+    commits a little later (a kill loses the store's last fraction of a second, never the RAW
+    file's). This decodes the RAW file, finds the store's last committed event in it (the same
+    time, position and polarity), appends every event and trigger after it, and closes the
+    session with ``attrs["recording"]`` saying it was recovered. Events whose times go back
+    are left out and placed as the recorder does (:meth:`capture.session.SessionWriter.append_events`).
+    Nothing is written unless the store's last event is found.
+
+    Returns
+    -------
+    dict
+        ``session``, ``events_added``, ``triggers_added``, ``seconds_added`` (event time, s),
+        ``events``, ``triggers`` (the totals now) and ``damage`` (the RAW file's damaged words,
+        e.g. the last word cut short by the kill, or None).
+
+    Raises
+    ------
+    SessionError
+        Not a recording cut short (closed by its recorder, no RAW file, or still being
+        written), or the RAW file does not hold the store's last event.
+    """
+    path = Path(session_dir)
+    session = open_session(path)
+    if not session.cut_short:
+        raise SessionError(f"{path}: nothing to recover: not a recording cut short (closed by its recorder, "
+                           "without a RAW file, or still being written)")
+    n = session.n_events
+    stored_triggers = len(session.triggers())
+    last, same_t = _last_event(session)
+    raw_path = path / str(session.attrs["raw_file"])
+    reader = RawReader(raw_path, chunk_bytes=chunk_bytes)
+    found = n == 0
+    seen_same_t = seen_triggers = 0
+    held_triggers: list[np.ndarray] = []
+    writer = store = None
+    added = {"triggers": 0, "t_from": None, "t_to": None}
+
+    def on_batch(events, triggers):
+        nonlocal found, seen_same_t, seen_triggers, writer, store
+        k = max(0, stored_triggers - seen_triggers)
+        seen_triggers += len(triggers)
+        triggers = triggers[k:]
+        if not found:
+            at_t = np.flatnonzero(events["t"] == last["t"])
+            if len(at_t) < same_t - seen_same_t:
+                seen_same_t += len(at_t)
+                held_triggers.append(triggers)
+                return
+            i = int(at_t[same_t - seen_same_t - 1])
+            if events[i] != last:
+                raise SessionError(f"{path}: {raw_path.name} does not match the store (its event at t = "
+                                   f"{int(last['t'])} µs differs): not recovered")
+            found, events = True, events[i + 1:]
+            triggers = np.concatenate([*held_triggers, triggers])
+        if writer is None:
+            writer = update_session(path)
+            store = StoreBehind(writer)
+        if len(events):
+            added["t_from"] = added["t_from"] if added["t_from"] is not None else int(events["t"][0])
+            added["t_to"] = int(events["t"][-1])
+        added["triggers"] += len(triggers)
+        store(events, triggers)
+
+    try:
+        with warnings.catch_warnings():  # the kill cut the last word short: reported as damage
+            warnings.simplefilter("ignore")
+            scan(reader, on_batch, progress=progress)
+        if not found:
+            raise SessionError(f"{path}: {raw_path.name} does not hold the store's last event (t = "
+                               f"{int(last['t'])} µs): not recovered")
+        if writer is None:  # the RAW file ends with the store's last event
+            writer = update_session(path)
+    finally:
+        if store is not None:
+            store.close()
+    damage = reader.damage_message()
+    n_added = writer.n_events - n  # the writer left out events whose times go back
+    writer.close(recording={
+        "stop_reason": "cut short (killed or crashed); the store was completed from its RAW file",
+        "recovered_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "recovered_events": n_added, "recovered_triggers": added["triggers"],
+        "payload_bytes": reader.size_bytes - reader.header_size, "raw_damage": damage})
+    done = open_session(path)
+    t_span = (added["t_to"] - added["t_from"]) * 1e-6 if added["t_from"] is not None else 0.0
+    return {"session": str(path), "events_added": n_added, "triggers_added": added["triggers"],
+            "seconds_added": round(t_span, 6), "events": done.n_events, "triggers": len(done.triggers()),
+            "damage": damage}
+
+
+def _last_event(session) -> tuple[np.ndarray, int]:
+    """The store's last committed event, and how many committed events share its time."""
+    n = session.n_events
+    if n == 0:
+        return np.zeros((), EVENT_DTYPE), 0
+    k = 1 << 12
+    while True:
+        tail = session.events_range(max(0, n - k), n)
+        t_last = tail["t"][-1]
+        if tail["t"][0] != t_last or k >= n:
+            return tail[-1], int(np.count_nonzero(tail["t"] == t_last))
+        k *= 4
 
 
 MIN_SYNC_TRIGGERS = 4
@@ -195,6 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_raw.add_argument("--overwrite", action="store_true", help="replace an existing session store")
     p_raw.add_argument("--quiet", action="store_true", help="no progress bar")
     add_ball_args(p_raw)
+    p_recover = sub.add_parser("recover", help="complete the store of a recording cut short (killed, "
+                               "crashed) from its RAW file")
+    p_recover.add_argument("session_dir")
+    p_recover.add_argument("--quiet", action="store_true", help="no progress bar")
     p_video = sub.add_parser("video", help="attach a GoPro MP4 to a session, aligned to the event clock")
     p_video.add_argument("session_dir")
     p_video.add_argument("mp4")
@@ -213,6 +329,8 @@ def main(argv=None) -> int:
         if args.command == "raw":
             print_fields(convert_raw(args.file, args.session_dir, time_shift=args.time_shift,
                                      overwrite=args.overwrite, progress=not args.quiet, ball=ball_attr(args)))
+        elif args.command == "recover":
+            print_fields(recover_session(args.session_dir, progress=not args.quiet))
         else:
             print(attach_video(args.session_dir, args.mp4, led_roi=args.led_roi, exposure_s=args.exposure))
 

@@ -2,6 +2,8 @@
 
 Runs detection and spin again over a stored session (:func:`capture.pipeline.replay.replay`),
 or first makes a session of a bare RAW file and its video (:func:`capture.ingest.session_from_raw`).
+A recording cut short (killed, crashed) is first completed from its RAW file
+(:func:`capture.ingest.recover_session`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import sys
 from pathlib import Path
 
 from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_command
-from capture.ingest import session_from_raw
+from capture.ingest import recover_session, session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
 from capture.results import format_flight_table, session_results
 from capture.session import open_session, update_session
@@ -73,6 +75,11 @@ def _run(args) -> None:
             print(note)
     else:
         session_path = src
+        if open_session(session_path).cut_short:
+            got = recover_session(session_path, progress=progress)
+            print(f"note: {session_path}: the recording was cut short (killed or crashed); its store was completed "
+                  f"from its RAW file: {got['events_added']} events, {got['seconds_added']:.3f} s, "
+                  f"{got['triggers_added']} triggers added", file=sys.stderr)
         if ball:
             with update_session(session_path) as writer:
                 writer.set_attrs(ball=ball)

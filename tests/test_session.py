@@ -402,3 +402,26 @@ def test_a_reopened_session_indexes_what_was_committed_after_the_last_flush(tmp_
     assert np.array_equal(s.events(), every)
     for a in range(0, 3_500_000, 70_001):
         assert np.array_equal(s.events(a, a + 20_000), time_slice(every, a, a + 20_000))
+
+
+def test_scheduled_commits_write_the_partly_filled_chunk_only_when_no_chunk_was_committed_lately(tmp_path, monkeypatch):
+    """At a high rate whole chunks commit within the interval and the partly filled last one is not
+    written again at each scheduled commit; once none has been committed for an interval, the
+    buffered events are; the ms index is written on schedule either way."""
+    clock = [1000.0]
+    monkeypatch.setattr(S.time, "monotonic", lambda: clock[0])
+    ev = _events(S.EVENT_CHUNK + 10, seed=21)
+    w = S.create_session(tmp_path / "s", width=640, height=480, flush_interval_s=0.2)
+    clock[0] += 0.15
+    w.append_events(ev)  # a whole chunk committed now, 10 events buffered
+    n_index = lambda: int(S.open_session(tmp_path / "s").root["index"].attrs["n_committed"])  # noqa: E731
+    assert S.open_session(tmp_path / "s").n_events == S.EVENT_CHUNK and n_index() == 0
+    clock[0] += 0.1  # 0.25 s since the last scheduled commit, 0.1 s since the chunk's
+    w.flush_if_due()
+    assert S.open_session(tmp_path / "s").n_events == S.EVENT_CHUNK  # the 10 wait for the next chunk
+    assert n_index() > 0  # the index is on schedule
+    clock[0] += 0.1  # 0.2 s without an event commit
+    w.flush_if_due()
+    s = S.open_session(tmp_path / "s")
+    assert s.n_events == len(ev) and np.array_equal(s.events(), ev)
+    w.close()
