@@ -22,6 +22,7 @@ Command line::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as _dt
 import shutil
 import warnings
@@ -137,6 +138,7 @@ def recover_session(session_dir, *, progress: bool = True, chunk_bytes: int = DE
             triggers = np.concatenate([*held_triggers, triggers])
         if writer is None:
             writer = update_session(path)
+            writer.set_attrs(analysis=None)  # an analysis of the shorter store no longer covers it
             store = StoreBehind(writer)
         if len(events):
             added["t_from"] = added["t_from"] if added["t_from"] is not None else int(events["t"][0])
@@ -153,9 +155,15 @@ def recover_session(session_dir, *, progress: bool = True, chunk_bytes: int = DE
                                f"{int(last['t'])} µs): not recovered")
         if writer is None:  # the RAW file ends with the store's last event
             writer = update_session(path)
-    finally:
         if store is not None:
             store.close()
+    except BaseException:
+        if writer is not None:  # what was appended stays committed; the session stays cut short
+            with contextlib.suppress(OSError):
+                if store is not None:
+                    store.close()
+                writer.close()
+        raise
     damage = reader.damage_message()
     n_added = writer.n_events - n  # the writer left out events whose times go back
     writer.close(recording={

@@ -16,7 +16,8 @@ from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_com
 from capture.ingest import recover_session, session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
 from capture.results import format_flight_table, session_results
-from capture.session import open_session, update_session
+from capture.raw import RawFormatError
+from capture.session import SessionError, open_session, update_session
 
 PROG = "python -m capture.replay"
 
@@ -76,10 +77,14 @@ def _run(args) -> None:
     else:
         session_path = src
         if open_session(session_path).cut_short:
-            got = recover_session(session_path, progress=progress)
-            print(f"note: {session_path}: the recording was cut short (killed or crashed); its store was completed "
-                  f"from its RAW file: {got['events_added']} events, {got['seconds_added']:.3f} s, "
-                  f"{got['triggers_added']} triggers added", file=sys.stderr)
+            try:
+                got = recover_session(session_path, progress=progress)
+                print(f"note: {session_path}: the recording was cut short (killed or crashed); its store was "
+                      f"completed from its RAW file: {got['events_added']} events, {got['seconds_added']:.3f} s, "
+                      f"{got['triggers_added']} triggers added", file=sys.stderr)
+            except (SessionError, RawFormatError, OSError) as exc:  # the stored part is still worth analysing
+                print(f"note: {session_path}: the recording was cut short and its store could not be completed "
+                      f"({' '.join(str(exc).split())}); analysing the stored part", file=sys.stderr)
         if ball:
             with update_session(session_path) as writer:
                 writer.set_attrs(ball=ball)

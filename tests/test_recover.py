@@ -11,6 +11,7 @@ import pytest
 from capture import raw
 from capture.ingest import main as ingest_main
 from capture.ingest import recover_session
+from capture.replay import main as replay_main
 from capture.session import SessionError, create_session, open_session, update_session
 from test_reliability_record import TRIGGER_FILE, _corrupt_time_low
 
@@ -99,6 +100,20 @@ def test_a_raw_file_that_is_not_the_sessions_is_refused_and_nothing_is_written(s
     assert len(err.splitlines()) == 1 and "does not match the store" in err
     s = open_session(out)
     assert s.n_events == n and s.cut_short  # untouched, still to recover
+    assert replay_main([str(out), "--quiet", "--workers", "1"]) == 0  # replay analyses the stored part
+    err = capsys.readouterr().err
+    assert "could not be completed" in err and "analysing the stored part" in err
+    assert open_session(out).n_events == n
+
+
+def test_recovery_drops_the_stamp_of_an_analysis_of_the_shorter_store(shared_raw_dir, tmp_path):
+    src = shared_raw_dir / TRIGGER_FILE
+    out = tmp_path / "s"
+    _killed_recording(src, out, stop_us=int(raw.read(src).events["t"][20_000]))
+    with update_session(out) as w:  # a batch analysed the stored part
+        w.set_attrs(analysis={"version": "x"})
+    recover_session(out, progress=False)
+    assert open_session(out).attrs.get("analysis") is None  # a batch analyses it again
 
 
 def test_a_session_being_written_is_not_cut_short_and_has_one_writer(shared_raw_dir, tmp_path, capsys):
