@@ -114,18 +114,23 @@ def recover_session(session_dir, *, progress: bool = True, chunk_bytes: int = DE
     raw_path = path / str(session.attrs["raw_file"])
     reader = RawReader(raw_path, chunk_bytes=chunk_bytes)
     found = n == 0
-    seen_same_t = seen_triggers = 0
+    seen_same_t = seen_events = seen_triggers = 0
     held_triggers: list[np.ndarray] = []
     writer = store = None
     added = {"triggers": 0, "t_from": None, "t_to": None}
 
     def on_batch(events, triggers):
-        nonlocal found, seen_same_t, seen_triggers, writer, store
+        nonlocal found, seen_same_t, seen_events, seen_triggers, writer, store
         k = max(0, stored_triggers - seen_triggers)
         seen_triggers += len(triggers)
         triggers = triggers[k:]
+        seen_events += len(events)
         if not found:
+            # the store holds every received event but those left out as out of order, so its last
+            # ones are at stream index n - same_t or later: an earlier event at that time is a
+            # corrupted one the recorder left out
             at_t = np.flatnonzero(events["t"] == last["t"])
+            at_t = at_t[at_t >= n - same_t - (seen_events - len(events))]
             if len(at_t) < same_t - seen_same_t:
                 seen_same_t += len(at_t)
                 held_triggers.append(triggers)

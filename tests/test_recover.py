@@ -12,6 +12,7 @@ from capture import raw
 from capture.ingest import main as ingest_main
 from capture.ingest import recover_session
 from capture.replay import main as replay_main
+from capture.events import make_events
 from capture.session import SessionError, create_session, open_session, update_session
 from test_reliability_record import TRIGGER_FILE, _corrupt_time_low
 
@@ -132,3 +133,24 @@ def test_a_session_being_written_is_not_cut_short_and_has_one_writer(shared_raw_
     with update_session(out) as again:  # closed: free to write again
         again.set_attrs(note="x")
     assert not open_session(out).cut_short
+
+
+def test_a_corrupted_event_at_the_stores_last_time_does_not_misplace_the_recovery(tmp_path):
+    """A time word corrupted upward puts one early event exactly at the time of the store's last
+    event, on the same pixel; the recorder left it out. Recovery resumes after the real one."""
+    t = np.concatenate([np.arange(0, 500), [1200], np.arange(500, 2000)])
+    rng = np.random.default_rng(5)
+    ev = make_events(t, rng.integers(0, 1280, len(t)), rng.integers(0, 720, len(t)), rng.integers(0, 2, len(t)))
+    spike, real = np.flatnonzero(t == 1200)
+    ev[["x", "y", "p"]][spike] = ev[["x", "y", "p"]][real]
+    body = raw.encode(ev[:spike + 1], width=1280, height=720) + raw.encode(ev[spike + 1:], width=1280, height=720)
+    src = tmp_path / "spike.raw"
+    src.write_bytes(raw.header_bytes("EVT3", width=1280, height=720) + body)
+    out = tmp_path / "s"
+    _killed_recording(src, out, stop_us=1201)
+    s = open_session(out)
+    assert s.n_events == 1201 and s.events()["t"][-1] == 1200  # the spike left out, the real one stored
+    assert s.root["events"].attrs["n_out_of_order"] == 1
+    recover_session(out, progress=False, chunk_bytes=256)
+    got = open_session(out).events()
+    assert np.array_equal(got, np.delete(ev, spike))  # each event once, in order
