@@ -151,6 +151,26 @@ def test_a_corrupt_session_is_reported_in_one_line_and_the_others_finish(session
     _assert_as_replayed(good, result, replayed)
 
 
+def test_a_recording_cut_short_is_completed_from_its_raw_file_then_analysed(sessions, replayed, client, tmp_path):
+    from capture import raw
+
+    full = open_session(sessions[2]).events()  # "both"
+    cut = tmp_path / "both"
+    w = create_session(cut, width=W, height=H, attrs={"raw_file": "events.raw"})
+    (cut / "events.raw").write_bytes(raw.header_bytes("EVT3", width=W, height=H) + raw.encode(full, width=W, height=H))
+    w.append_events(full[:len(full) // 3])
+    w.flush()
+    del w  # killed: a third of what it received is in the store
+    import gc
+    gc.collect()
+    assert open_session(cut).cut_short
+    result = run_batch([cut], client, OPTIONS, progress=False)
+    s = open_session(cut)
+    assert result.analysed == [str(cut.resolve())] and not s.cut_short
+    assert np.array_equal(s.events(), full)
+    _assert_as_replayed([cut], result, replayed)  # as the whole session, replayed alone
+
+
 def test_command_writes_the_season_tables_and_says_what_it_did(sessions, replayed, tmp_path, capsys):
     paths = _copies(sessions[:2], tmp_path)
     out = tmp_path / "season.parquet"
