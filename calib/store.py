@@ -9,22 +9,23 @@ import numpy as np
 
 from calib.intrinsics import Intrinsics
 from calib.stereo import CameraPair
-from calib.sync import TimeMap
+from calib.sync import TimeMap, exposure_span_s
 
 
-def frame_times_us(t_frame_s, time_map: TimeMap, *, exposure_s: float = 0.0) -> np.ndarray:
-    """Event-clock times (int64 µs) of frames: the centre of each exposure ``t + exposure_s / 2``.
+def frame_times_us(t_frame_s, time_map: TimeMap, *, exposure_s=0.0) -> np.ndarray:
+    """Event-clock times (int64 µs) of frames: the centre of each exposure
+    (:func:`calib.sync.exposure_span_s`: ``t + exposure_s / 2`` for one exposure for the clip).
 
     Parameters
     ----------
     t_frame_s : array_like, shape (N,)
         Frame presentation times on the GoPro clock (s), e.g. ``read_video(path).t_s``.
     time_map : TimeMap
-    exposure_s : float
-        Exposure time (s); 0 gives the exposure start.
+    exposure_s : float or array_like, shape (N,)
+        Exposure time (s), or one per frame (auto-exposure); 0 gives the exposure start.
     """
-    t = np.asarray(t_frame_s, np.float64) + 0.5 * float(exposure_s)
-    return np.round(time_map.to_event_us(t)).astype(np.int64)
+    start, end = exposure_span_s(t_frame_s, exposure_s)
+    return np.round(time_map.to_event_us(0.5 * (start + end))).astype(np.int64)
 
 
 def store_calibration(writer, *, time_map: TimeMap | None = None, cameras: CameraPair | None = None) -> None:
@@ -46,7 +47,7 @@ def store_calibration(writer, *, time_map: TimeMap | None = None, cameras: Camer
     writer.set_attrs(**attrs)
 
 
-def attach_video(writer, session_dir, video, time_map: TimeMap, *, exposure_s: float = 0.0) -> np.ndarray:
+def attach_video(writer, session_dir, video, time_map: TimeMap, *, exposure_s=0.0) -> np.ndarray:
     """Reference a GoPro recording from the session with its frame times on the event clock.
 
     Parameters
@@ -57,8 +58,8 @@ def attach_video(writer, session_dir, video, time_map: TimeMap, *, exposure_s: f
     video : capture.gopro.Video
         From :func:`capture.gopro.read_video` (first chapter's path is stored).
     time_map : TimeMap
-    exposure_s : float
-        Exposure time (s); the stored time is the exposure centre.
+    exposure_s : float or array_like, shape (N,)
+        Exposure time (s), or one per frame; the stored time is the exposure centre.
 
     Returns
     -------

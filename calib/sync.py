@@ -379,11 +379,33 @@ CONTRADICTED_CHI2 = 25.0
 chi-square by more than this (5 sigma)."""
 
 
+def exposure_span_s(t_frame_s, exposure_s) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end of each frame's exposure on the frame clock (s).
+
+    A camera reads frames at a fixed cadence, so its exposures end together: a frame at ``t``
+    with exposure ``e`` is exposed over ``[t + ē - e, t + ē]``, ``ē`` the median of the clip's
+    exposures. With one exposure for the clip that is ``[t, t + e]``: the time map then gives
+    each exposure's start, and with auto-exposure the start of a frame exposed for ``ē``.
+
+    Parameters
+    ----------
+    t_frame_s : array_like, shape (N,)
+        Frame presentation times (s).
+    exposure_s : float or array_like, shape (N,)
+        Exposure per frame (s), or one for the clip.
+    """
+    t = np.asarray(t_frame_s, np.float64)
+    e = np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape)
+    end = t + (float(np.median(e)) if e.size else 0.0)
+    return end - e, end
+
+
 def fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start: TimeMap, exposure_s, *,
                    fit_exposure: bool = False, gamma: float = 2.2, search_s: float = 0.0) -> tuple[TimeMap, float]:
     """Fit the map to every frame's LED brightness at once (forward model), from a close ``start``.
 
-    Each frame exposed over ``[t, t + e]`` (frame clock) sees the LED on for the fraction of
+    Each frame exposed over ``[t, t + e]`` (frame clock; with one exposure per frame, over
+    ``[t + ē - e, t + ē]``, :func:`exposure_span_s`) sees the LED on for the fraction of
     ``[map(t), map(t + e)]`` that the trigger edges (event clock) say it was on; its linearised
     brightness ``(b / 255) ** gamma`` is ``lo + (hi - lo) * fraction``. Offset, drift, the two
     levels (and the exposure when ``fit_exposure``) are fitted together by robust least squares
@@ -407,7 +429,7 @@ def fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start: TimeMap, exp
         Exposure per frame (s): one for the clip or one per frame (GPMF ``SHUT``); the start
         value when ``fit_exposure``.
     fit_exposure : bool
-        Fit one exposure for the clip too.
+        Fit one exposure for the clip too (one scale for every frame's).
     search_s : float
         Before fitting, try offsets within ``± search_s`` of ``start`` (steps of a quarter
         exposure) and start from the one whose frames fit best (a start a frame or more off).
@@ -438,20 +460,22 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
     bl = (np.clip(np.asarray(brightness, np.float64), 0, None) / 255.0) ** gamma
     t = np.asarray(t_frame_s, np.float64)
     e0 = np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape).copy()
+    scale_e = float(np.median(e0))  # ē: the exposures end together at ē after the frame time
     knots = _on_time_knots(np.asarray(trig_t_us, np.float64), np.asarray(trig_p))
     y_lo, y_hi = knots[0][0], knots[0][-1]
-    inside = (start.to_event_us(t) >= y_lo) & (start.to_event_us(t + e0) <= y_hi)
+    a0, b0 = exposure_span_s(t, e0)
+    inside = (start.to_event_us(a0) >= y_lo) & (start.to_event_us(b0) <= y_hi)
     t, bl, e0 = t[inside], bl[inside], e0[inside]
     if len(t) < 8:
         raise SyncError(f"only {len(t)} frames lie inside the span of the trigger edges (need 8)")
     t_ref = float(np.mean(t))
     off0 = float(start.to_event_us(t_ref))
-    scale_e = float(np.median(e0))
 
     def fractions(x):
         off, drift = x[0], x[1]
-        e = e0 * (x[4] * 1e-6 / scale_e) if fit_exposure else e0  # x[4]: the clip's exposure, µs
-        y0 = off + (1 + drift * 1e-6) * (t - t_ref) * 1e6
+        k = x[4] * 1e-6 / scale_e if fit_exposure else 1.0  # x[4]: the clip's (median) exposure, µs
+        e = e0 * k
+        y0 = off + (1 + drift * 1e-6) * (t - t_ref + scale_e * k - e) * 1e6
         return _on_fraction(y0, y0 + (1 + drift * 1e-6) * e * 1e6, knots)
 
     def levels(f):
@@ -546,7 +570,7 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
     return tmap, float(e_fit), float(np.sum(r[keep] ** 2)), s2
 
 
-def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = None, channel: int | None = None,
+def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s=None, channel: int | None = None,
                  led_on_edge: int = 1, max_drift_ppm: float = 200.0, prior: TimeMap | None = None,
                  prior_window_s: float | None = None, gamma: float = 2.2) -> tuple[TimeMap, float]:
     """Fit the map from a sync-box recording (method (a)).
@@ -559,10 +583,11 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = 
         Frame presentation times (s) on the GoPro clock.
     triggers : ndarray of TRIGGER_DTYPE
         EVK trigger events (µs, event clock).
-    exposure_s : float, optional
-        Frame exposure time (s) when known (fixed shutter). When omitted it is estimated: the
-        exposure in [0.1, 1] frame period whose edge times fit the triggers with the smallest
-        weighted residual (edges timed inside an exposure dominate).
+    exposure_s : float or array_like of shape (N,), optional
+        Frame exposure time (s) when known: one for the clip (fixed shutter), or one per frame
+        (auto-exposure, from GPMF ``SHUT``; exposures end together, :func:`exposure_span_s`).
+        When omitted it is estimated: the exposure in [0.1, 1] frame period whose edge times fit
+        the triggers with the smallest weighted residual (edges timed inside an exposure dominate).
     channel : int, optional
         Trigger channel the LED is wired to (default: all).
     led_on_edge : int
@@ -580,7 +605,7 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = 
     time_map : TimeMap
         ``method="sync_box"``; ``sigma_us`` gives the uncertainty.
     exposure_s : float
-        The exposure used (given or estimated), seconds.
+        The exposure used (given, their median when one per frame, or estimated), seconds.
     """
     t = np.asarray(t_frame_s, np.float64)
     tr = np.asarray(triggers)
@@ -590,17 +615,18 @@ def fit_sync_box(brightness, t_frame_s, triggers, *, exposure_s: float | None = 
         raise SyncError(f"no trigger events{'' if channel is None else f' on channel {channel}'}")
     trig_p = np.where(tr["p"] == led_on_edge, 1, 0)
     period = float(np.median(np.diff(t)))
-    e0 = period if exposure_s is None else float(exposure_s)
-    te, pe, se = led_edges(brightness, t, e0, gamma=gamma)
+    given = None if exposure_s is None else np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape)
+    e0 = period if given is None else float(np.median(given))
+    te, pe, se = led_edges(brightness, t, e0, gamma=gamma)  # rough edges: the fit below takes each exposure
     tmap = match_edges(te, pe, se, tr["t"], trig_p, frame_period_s=period, max_drift_ppm=max_drift_ppm,
                        prior=prior, prior_window_s=prior_window_s)
-    if exposure_s is not None:
-        fixed, _, cost, _ = _fit_led_frames(brightness, t, tr["t"], trig_p, tmap, e0, fit_exposure=False,
+    if given is not None:
+        fixed, _, cost, _ = _fit_led_frames(brightness, t, tr["t"], trig_p, tmap, given, fit_exposure=False,
                                             gamma=gamma, search_s=period)
         # a given exposure that the frames contradict (a wrong value typed, a shutter that changed)
         # leaves the offset uncertain by as much as the best-fitting exposure moves it
         try:
-            free, _, cost_free, s2_free = _fit_led_frames(brightness, t, tr["t"], trig_p, fixed, e0,
+            free, _, cost_free, s2_free = _fit_led_frames(brightness, t, tr["t"], trig_p, fixed, given,
                                                           fit_exposure=True, gamma=gamma, search_s=0.0)
         except SyncError:
             return fixed, e0

@@ -208,18 +208,20 @@ def _event_times_sample(session, max_events: int = 5_000_000) -> np.ndarray:
     return np.asarray(session.read_column("events", "t", 0, n, step))
 
 
-def fit_time_map(session_dir, video, *, exposure_s: float | None = None, led_roi=None):
+def fit_time_map(session_dir, video, *, exposure_s=None, led_roi=None):
     """Fit the frame-clock -> event-clock map of ``video`` for a session.
 
     Uses the sync box (LED in the frames, wired to the EVK trigger input) when the
     session holds trigger events, else the cross-correlation of event activity with
-    frame-difference energy.
+    frame-difference energy. ``exposure_s``: one for the clip or one per frame (s); None:
+    estimated.
 
     Returns
     -------
     time_map : calib.sync.TimeMap
     exposure_s : float
-        The exposure time used (estimated by the sync-box fit when not given), s.
+        The exposure time used (their median when one per frame; estimated by the sync-box fit
+        when not given), s.
     """
     s = open_session(session_dir)
     triggers = s.triggers()
@@ -229,7 +231,7 @@ def fit_time_map(session_dir, video, *, exposure_s: float | None = None, led_roi
             return sync.fit_sync_box(brightness, video.t_s, triggers, exposure_s=exposure_s)
         except sync.SyncError:
             pass  # an LED that is not in view: fall back to activity correlation
-    exposure_s = exposure_s or 1.0 / float(video.fps)
+    exposure_s = float(np.median(exposure_s)) if exposure_s is not None else 1.0 / float(video.fps)
     energy = sync.frame_difference_energy(img for _, _, img in video.frames(gray=True))
     return sync.fit_activity(_event_times_sample(s), video.t_s, energy, exposure_s=exposure_s), exposure_s
 
@@ -268,19 +270,24 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
     source, notes = ("given" if exposure_s is not None else "estimated"), []
     samples = gpmf_samples(first)
     meta = gpmf.frame_metadata(*samples) if samples is not None else None
+    per_frame = None
     if meta is not None:
-        per_frame = meta.exposure_at(video.t_s - video.t_s[0])
-        if exposure_s is None:
-            exposure_s, source = float(np.median(per_frame)), "gpmf"
-            lo, hi = np.percentile(per_frame, [5, 95])
-            notes.append(f"exposure {exposure_s * 1e3:.3f} ms from the camera's metadata"
-                         + (f" (varies {lo * 1e3:.3f}-{hi * 1e3:.3f} ms)" if hi > 1.05 * lo else ""))
+        recorded = meta.exposure_at(video.t_s - video.t_s[0])
+        lo, hi = np.percentile(recorded, [5, 95])
+        if exposure_s is None:  # each frame's own exposure (auto-exposure), unless one is typed
+            per_frame, source = recorded, "gpmf"
+            notes.append(f"exposure {float(np.median(per_frame)) * 1e3:.3f} ms from the camera's metadata"
+                         + (f" (varies {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; each frame's is used)" if hi > 1.05 * lo else ""))
+        elif hi > 1.05 * lo:
+            notes.append(f"the camera's metadata says the exposure varied {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; the "
+                         f"typed {exposure_s * 1e3:.3f} ms is used for every frame (leave --exposure out to use each frame's)")
         skipped = int(np.count_nonzero(meta.frame_skips))
         if skipped:
             notes.append(f"{skipped} frames skipped or duplicated by the camera (GPMF MSKP)")
-    tm, exposure_s = fit_time_map(session_dir, video, exposure_s=exposure_s, led_roi=led_roi)
+    tm, exposure_s = fit_time_map(session_dir, video, exposure_s=per_frame if per_frame is not None else exposure_s,
+                                  led_roi=led_roi)
     writer = update_session(session_dir)
-    store.attach_video(writer, session_dir, video, tm, exposure_s=exposure_s)
+    store.attach_video(writer, session_dir, video, tm, exposure_s=per_frame if per_frame is not None else exposure_s)
     writer.set_attrs(frame_camera={"model": "GoPro", "width": video.width, "height": video.height,
                                    "fps_num": video.fps_num, "fps_den": video.fps_den,
                                    "n_frames": video.n_frames, "exposure_s": float(exposure_s),

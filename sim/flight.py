@@ -68,8 +68,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         hand passing a few pixels from the ball.
     fps : float, optional
         Frame camera rate (60/120/240/480 ...); None: no frames.
-    exposure_s : float, optional
-        Exposure per frame (default half the frame period).
+    exposure_s : float or callable, optional
+        Exposure per frame, s (default half the frame period); or a function of the event-clock
+        time (s, array) giving each frame's exposure: auto-exposure. Frames are read at a fixed
+        cadence, so exposures end on it and a shorter one starts later (``truth["frames"]
+        ["exposure_s"]`` is then one per frame).
     frame_size : (int, int), optional
         Frame (width, height) (default: the sensor size).
     frame_to_event : (3, 3), optional
@@ -235,18 +238,29 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
         order = np.argsort(t_tr, kind="stable")
         triggers = make_triggers(t0_us + np.rint(t_tr[order] * 1e6).astype(np.int64), 0, pol[order])
         truth["sync"] = {"period_s": sync.period_s, "pulse_s": sync.pulse_s, "phase_s": sync.phase_s,
+                         "jitter_s": sync.jitter_s, "seed": sync.seed,
                          "led_box_px": list(sync.led_box_px), "channel": 0}
     frames = frame_times = None
     if fps:
         fw, fh = (width, height) if frame_size is None else map(int, frame_size)
-        exp = 0.5 / fps if exposure_s is None else float(exposure_s)
         phase = frame_rng.uniform(0, 1.0 / fps)
-        t_mid = np.arange(phase + exp / 2, duration_s - exp / 2, 1.0 / fps)
+        if callable(exposure_s):  # auto-exposure: each exposure ends on the frame cadence
+            ends = np.arange(phase + 1.0 / fps, duration_s, 1.0 / fps)
+            exp = np.asarray(exposure_s(ends), float)
+            if exp.shape != ends.shape or not np.all((exp > 0) & (exp <= 1.0 / fps)):
+                raise ValueError("exposure_s(t) must give one exposure per frame in (0, 1/fps]")
+            keep = ends - exp >= 0
+            ends, exp = ends[keep], exp[keep]
+            t_mid = ends - exp / 2
+        else:
+            exp = 0.5 / fps if exposure_s is None else float(exposure_s)
+            t_mid = np.arange(phase + exp / 2, duration_s - exp / 2, 1.0 / fps)
         hmat = np.eye(3) if frame_to_event is None else np.asarray(frame_to_event, float)
         frames = render_frames(scene, t_mid, exposure_s=exp, width=fw, height=fh, frame_to_event=hmat,
                                rng=frame_rng, noise_dn=frame_noise_dn, sync=sync or None)
         frame_times = t0_us + np.rint(t_mid * 1e6).astype(np.int64)
-        truth["frames"] = {"fps": float(fps), "exposure_s": exp, "width": fw, "height": fh,
+        truth["frames"] = {"fps": float(fps), "exposure_s": exp if np.ndim(exp) == 0 else exp.tolist(),
+                           "width": fw, "height": fh,
                            "frame_to_event": hmat, "t_us": frame_times,
                            "t_frame_clock_s": frame_clock_offset_s + (frame_times * 1e-6) * (1 + frame_clock_drift_ppm * 1e-6),
                            "clock_offset_s": frame_clock_offset_s, "clock_drift_ppm": frame_clock_drift_ppm}

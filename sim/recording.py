@@ -84,6 +84,8 @@ def load_truth(path) -> dict:
         fr["frame_to_event"] = np.asarray(fr["frame_to_event"], float)
         fr["t_us"] = np.asarray(fr["t_us"], np.int64)
         fr["t_frame_clock_s"] = np.asarray(fr["t_frame_clock_s"], float)
+        if isinstance(fr.get("exposure_s"), list):  # auto-exposure: one per frame
+            fr["exposure_s"] = np.asarray(fr["exposure_s"], float)
     return truth
 
 
@@ -221,4 +223,4 @@ def _add_camera_metadata(mp4_path, frames_truth: dict, n_frames: int) -> None:
     payloads = [gpmf.camera_payload(exposure[i:i + per], iso=np.full(len(exposure[i:i + per]), 100),
                                     frame_skips=np.zeros(len(exposure[i:i + per]), np.uint16))
                 for i in range(0, n_frames, per)]
-    add_gpmf_track(mp4_path, payloads, per / fps)
+    add_gpmf_track(mp4_path, payloads, [min(per, n_frames - i) / fps for i in range(0, n_frames, per)])

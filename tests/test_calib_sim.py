@@ -65,3 +65,38 @@ def test_sync_on_simulated_flight(sim_rec, downloaded):
     assert err_ae <= 500.0
     # right, or flagged: each error within three of its own sigmas
     assert err_a <= 3 * tmap.sigma_us(v.t_s).max() and err_ae <= 3 * tmap_e.sigma_us(v.t_s).max()
+
+
+def test_auto_exposure_read_from_gpmf_times_every_frame_within_50_us(tmp_path):
+    """A GoPro on auto-exposure (each exposure ending on the frame cadence) and a sync box with
+    pseudo-random pulses: ingest reads each frame's exposure from the clip's GPMF and stores
+    every frame's exposure centre within 50 µs of the truth, its sigma covering the error; one
+    exposure for the clip (the median) would put frames hundreds of µs off."""
+    from calib.store import frame_times_us
+    from calib.sync import TimeMap
+    from capture.ingest import attach_video, session_from_raw
+    from capture.session import open_session
+    from sim import SyncBox, flight
+
+    rec = flight(width=320, height=240, radius_px=18, duration_s=0.6, fps=FPS,
+                 exposure_s=lambda t: (0.35 + 0.15 * np.sin(2 * np.pi * t / 0.5)) / FPS,
+                 sync=SyncBox(period_s=0.05, pulse_s=0.013, phase_s=0.007, led_box_px=LED, jitter_s=0.03, seed=4),
+                 frame_clock_offset_s=12.345, frame_clock_drift_ppm=40.0, seed=2)
+    exposure = rec.truth["frames"]["exposure_s"]
+    assert np.ptp(exposure) > 0.5 * np.median(exposure)  # it does vary
+    paths = rec.save(tmp_path / "rec", raw=True, video=True)
+    session, note = session_from_raw(paths["raw"], tmp_path / "s", paths["video"], progress=False, led_roi=LED)
+    assert "each frame's is used" in note and "sync_box" in note
+    s = open_session(session)
+    truth = rec.truth["frames"]["t_us"]
+    err = np.abs(s.frames()["t_us"] - truth)
+    tm = TimeMap.from_dict(s.attrs["time_sync"])
+    assert err.max() <= 50 and err.max() <= 3 * tm.sigma_us(0.0)
+    assert s.attrs["frame_camera"]["exposure_source"] == "gpmf"
+    # the clip's median exposure for every frame, on the same map: the frames are far off
+    t_s = read_video(tmp_path / "s" / "gopro" / paths["video"].name).t_s
+    median_only = frame_times_us(t_s, tm, exposure_s=float(np.median(exposure)))
+    assert np.abs(median_only - truth).max() > 100
+    # an exposure typed although the camera says it varied: used, and said so
+    typed = attach_video(session, paths["video"], exposure_s=float(np.median(exposure)), led_roi=LED)
+    assert "exposure varied" in typed and "used for every frame" in typed

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from calib.sync import (
+    exposure_span_s,
     SyncError, TimeMap, fit_activity, fit_linear, fit_sync_box, frame_difference_energy, led_brightness,
 )
 from capture.events import make_triggers
@@ -180,3 +181,13 @@ def test_time_map_roundtrip_inverse_and_dict():
     np.testing.assert_allclose(tm2.to_event_us(x), tm.to_event_us(x))
     np.testing.assert_allclose(tm2.cov, tm.cov)
     assert d["method"] == "sync_box" and d["sigma_drift_ppm"] > 0
+
+
+def test_exposure_spans_end_together_with_one_exposure_per_frame():
+    t = np.arange(5) / 240.0
+    a, b = exposure_span_s(t, 1e-3)
+    np.testing.assert_allclose(a, t) and np.testing.assert_allclose(b, t + 1e-3)
+    e = np.array([1.0, 2.0, 1.5, 0.5, 1.5]) * 1e-3
+    a, b = exposure_span_s(t, e)
+    np.testing.assert_allclose(b, t + 1.5e-3)  # every exposure ends at the median after its frame time
+    np.testing.assert_allclose(b - a, e)

@@ -52,3 +52,18 @@ def test_metadata_track_in_an_mp4_leaves_the_video_untouched(tmp_path):
         f.write(struct.pack(">I4s", 8, b"free"))
     with pytest.raises(MP4Error, match="'moov' is not the last box"):
         add_gpmf_track(path, payloads, 10 / 240)
+
+
+def test_a_clips_last_payload_is_shorter_and_its_frames_keep_their_exposure(tmp_path):
+    """A clip of 25 frames with payloads of 10 frames: the last covers 5 frames' time (as a camera
+    ends a clip); each frame's exposure is read back at its own time."""
+    frames = [np.full((32, 48), 10 * i, np.uint8) for i in range(25)]
+    path = write_video(tmp_path / "clip.mp4", frames, fps=240)
+    exposure = np.linspace(0.5e-3, 2.0e-3, 25)
+    payloads = [gpmf.camera_payload(exposure[i:i + 10], iso=np.full(len(exposure[i:i + 10]), 200),
+                                    frame_skips=np.zeros(len(exposure[i:i + 10]), np.uint16)) for i in (0, 10, 20)]
+    add_gpmf_track(path, payloads, [10 / 240, 10 / 240, 5 / 240])
+    got, start, dur = gpmf_samples(path)
+    np.testing.assert_allclose(dur, [10 / 240, 10 / 240, 5 / 240], atol=1e-4)
+    meta = gpmf.frame_metadata(got, start, dur)
+    np.testing.assert_allclose(meta.exposure_at(np.arange(25) / 240), exposure, rtol=1e-6)

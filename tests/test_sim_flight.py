@@ -225,3 +225,30 @@ def test_flight_is_deterministic_for_a_seed():
     assert np.array_equal(a.events, b.events) and np.array_equal(a.frames, b.frames)
     assert np.array_equal(a.triggers, b.triggers)
     assert not np.array_equal(a.events, c.events)
+
+
+def test_a_sync_box_with_jitter_blinks_at_pseudo_random_phases():
+    box = sim.SyncBox(period_s=0.05, pulse_s=0.013, phase_s=0.007, jitter_s=0.03, seed=3)
+    rise, fall = box.edges_s(0.0, 2.0)
+    assert len(rise) == len(fall) == 40 and np.allclose(fall - rise, 0.013)
+    phase = (rise - 0.007) % 0.05
+    assert phase.min() >= 0 and phase.max() < 0.03 and np.std(phase) > 0.005  # not one phase
+    # the LED is on exactly between its edges
+    a = np.r_[rise - 1e-4, rise + 1e-4, fall - 1e-4, fall + 1e-4]
+    np.testing.assert_allclose(box.on_fraction(a, a + 2e-5), np.r_[np.zeros(40), np.ones(40), np.ones(40), np.zeros(40)])
+    assert np.array_equal(box.edges_s(0.0, 2.0)[0], rise)  # fixed by the seed
+    assert not np.allclose(sim.SyncBox(period_s=0.05, pulse_s=0.013, phase_s=0.007, jitter_s=0.03, seed=4).edges_s(0, 2)[0], rise)
+    with pytest.raises(ValueError, match="jitter_s"):
+        sim.SyncBox(period_s=0.05, pulse_s=0.013, jitter_s=0.04)
+
+
+def test_auto_exposure_frames_end_on_the_frame_cadence():
+    rec = sim.flight(width=160, height=120, radius_px=10, duration_s=0.1, fps=240.0,
+                     exposure_s=lambda t: (0.3 + 0.6 * t / 0.1) / 240.0, seed=1)
+    fr = rec.truth["frames"]
+    e = np.asarray(fr["exposure_s"])
+    ends_us = fr["t_us"] + e / 2 * 1e6
+    assert len(e) == len(fr["t_us"]) and np.ptp(e) > 0.4 / 240
+    np.testing.assert_allclose(np.diff(ends_us), 1e6 / 240, atol=1.0)  # ends on the cadence (µs rounding)
+    with pytest.raises(ValueError, match="one exposure per frame"):
+        sim.flight(width=160, height=120, duration_s=0.05, fps=240.0, exposure_s=lambda t: np.full_like(t, 0.01))

@@ -281,9 +281,10 @@ def _box(kind: bytes, *parts: bytes) -> bytes:
     return struct.pack(">I4s", 8 + len(body), kind) + body
 
 
-def add_gpmf_track(path, payloads: list[bytes], sample_duration_s: float, timescale: int = 90_000) -> Path:
+def add_gpmf_track(path, payloads: list[bytes], sample_duration_s, timescale: int = 90_000) -> Path:
     """Append a GPMF metadata track (``meta`` handler, ``gpmd`` samples of ``sample_duration_s``
-    each, one per chunk) to an MP4 whose ``moov`` is its last box; the video is left untouched.
+    each, or one duration per sample (a clip's last payload is shorter), one per chunk) to an
+    MP4 whose ``moov`` is its last box; the video is left untouched.
 
     Raises
     ------
@@ -299,14 +300,16 @@ def add_gpmf_track(path, payloads: list[bytes], sample_duration_s: float, timesc
             raise MP4Error(f"{path}: 'moov' is not the last box; cannot append a metadata track")
         moov_start = m0 - 8
         moov = _read(f, m0, m1 - m0, path)
-    delta = int(round(sample_duration_s * timescale))
     n = len(payloads)
+    deltas = np.rint(np.broadcast_to(np.asarray(sample_duration_s, np.float64), (n,)) * timescale).astype(np.int64)
+    runs = np.flatnonzero(np.diff(deltas, prepend=-1) != 0)  # stts: (count, delta) per run
+    counts = np.diff(np.append(runs, n))
     data = b"".join(payloads)
     offsets, pos = [], moov_start + 8  # the new mdat takes the old moov's place
     for p in payloads:
         offsets.append(pos)
         pos += len(p)
-    duration = delta * n
+    duration = int(deltas.sum())
     tkhd = _box(b"tkhd", struct.pack(">IIIIII", 3, 0, 0, 99, 0, duration), b"\0" * 8,
                 struct.pack(">hhhh", 0, 0, 0, 0), struct.pack(">9I", 0x10000, 0, 0, 0, 0x10000, 0, 0, 0, 0x40000000),
                 struct.pack(">II", 0, 0))
@@ -314,7 +317,8 @@ def add_gpmf_track(path, payloads: list[bytes], sample_duration_s: float, timesc
     hdlr = _box(b"hdlr", struct.pack(">II4s", 0, 0, b"meta"), b"\0" * 12, b"GoPro MET\0")
     dinf = _box(b"dinf", _box(b"dref", struct.pack(">II", 0, 1), _box(b"url ", struct.pack(">I", 1))))
     stsd = _box(b"stsd", struct.pack(">II", 0, 1), _box(b"gpmd", b"\0" * 6, struct.pack(">H", 1)))
-    stts = _box(b"stts", struct.pack(">IIII", 0, 1, n, delta))
+    stts = _box(b"stts", struct.pack(">II", 0, len(runs)),
+                *(struct.pack(">II", int(c), int(deltas[r])) for c, r in zip(counts, runs)))
     stsc = _box(b"stsc", struct.pack(">IIIII", 0, 1, 1, 1, 1))
     stsz = _box(b"stsz", struct.pack(">III", 0, 0, n), struct.pack(f">{n}I", *(len(p) for p in payloads)))
     stco = _box(b"stco", struct.pack(">II", 0, n), struct.pack(f">{n}I", *offsets))
