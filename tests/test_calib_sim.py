@@ -61,6 +61,7 @@ def test_sync_on_simulated_flight(sim_rec, downloaded):
           f"sync box max err {err_a:.1f} us (sigma {tmap.sigma_us(v.t_s).max():.1f} us, {tmap.n} edges), "
           f"exposure estimated {e_est * 1e3:.3f} ms -> err {err_ae:.1f} us")
     assert err_b <= period_us
+    assert err_b <= 2 * coarse.sigma_us(v.t_s).max()  # the activity fit's sigma means what it says
     assert err_a <= 500.0
     assert err_ae <= 500.0
     # right, or flagged: each error within three of its own sigmas

@@ -148,6 +148,7 @@ def test_activity_within_one_frame(fps):
     print(f"activity fps={fps:.2f}: max err {err.max():.1f} us = {err.max() / period_us:.3f} frame, "
           f"drift {tmap.drift_ppm:.1f} ppm, sigma {tmap.sigma_us(t_frame).max():.1f} us")
     assert err.max() <= period_us
+    assert err.max() <= 2 * tmap.sigma_us(t_frame).max()  # right, or flagged
     assert tmap.method == "activity"
 
 
