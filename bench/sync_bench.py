@@ -20,6 +20,8 @@ The sync-box fit (``calib.sync.fit_sync_box``) then runs with the exposure
 - ``estimated``: left to the fit (the exposure that best explains the LED edges),
 - ``wrong``: a fixed exposure of one frame period (a user typing the wrong value),
 
+the LED (8 px in a 320 x 240 frame, beside a moving player) found in the frames as ingest finds it,
+
 and prints the largest error of the stored frame times (each exposure's centre on the event
 clock, ``calib.store.frame_times_us``) against the truth (µs) and the fit's own 1-sigma.
 
@@ -36,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.store import frame_times_us
-from calib.sync import fit_activity, fit_sync_box, frame_difference_energy, led_brightness
+from calib.sync import fit_activity, fit_sync_box, frame_difference_energy, led_brightness, refine_led_roi
 from capture.gopro import gpmf, read_video
 from capture.gopro.mp4 import gpmf_samples
 
@@ -66,7 +68,8 @@ def one(fps: float, seed: int, tmp: Path, setup: str) -> dict:
     e_med = float(np.median(rec.truth["frames"]["exposure_s"]))
     energy = frame_difference_energy(img[16:] for _, _, img in v.frames(gray=True))
     coarse = fit_activity(rec.events["t"], v.t_s, energy, exposure_s=e_med)
-    b, _ = led_brightness(v.frames(gray=True), roi=LED)
+    b, roi = led_brightness(v.frames(gray=True))  # the LED found in the frames, as ingest finds it
+    b, roi = refine_led_roi(v.frames(gray=True), roi)
     meta = gpmf.frame_metadata(*gpmf_samples(video_path))
     per_frame = meta.exposure_at(v.t_s - v.t_s[0])
     exposures = {"gpmf": per_frame, "gpmf median": float(np.median(per_frame)), "estimated": None,

@@ -150,8 +150,9 @@ def led_brightness(frames: Iterable, roi=None, *, grid: int = 32) -> tuple[np.nd
         yielded by :meth:`capture.gopro.Video.frames`.
     roi : (x0, y0, x1, y1), optional
         LED region in pixels (half-open). When omitted, the frames are reduced to a
-        ``grid x grid`` array of block means and the block whose brightness varies most over
-        time is taken (an LED blinking in a static scene).
+        ``grid x grid`` array of block means and the block is taken whose brightness spreads most
+        between its 5th and 95th percentiles over time, stays near those two levels and switches
+        between them most often (an LED blinking in a scene where a ball passes, or a player moves).
     grid : int
         Blocks per side for the automatic search.
 
@@ -184,11 +185,57 @@ def led_brightness(frames: Iterable, roi=None, *, grid: int = 32) -> tuple[np.nd
     if roi is not None:
         return np.asarray(vals), tuple(int(v) for v in roi)
     stack = np.stack(blocks)
-    k = int(np.argmax(stack.std(axis=0)))
+    # an LED is at one of two levels in nearly every frame and switches between them again and
+    # again; a ball passing a block changes it for a few frames only (a small spread between the
+    # 5th and 95th percentiles), a player moving in it gives the levels in between and few switches
+    lo, hi = np.percentile(stack, [5, 95], axis=0)
+    spread = hi - lo
+    near = np.mean((np.abs(stack - lo) <= 0.15 * spread) | (np.abs(stack - hi) <= 0.15 * spread), axis=0)
+    above = stack > 0.5 * (lo + hi)
+    switches = np.count_nonzero(above[1:] != above[:-1], axis=0)
+    k = int(np.argmax(spread * near ** 2 * switches))
     gy, gx = divmod(k, stack.shape[2])
     h, w = shape
     by, bx = max(1, h // grid), max(1, w // grid)
     return stack[:, gy, gx].astype(np.float64), (gx * bx, gy * by, (gx + 1) * bx, (gy + 1) * by)
+
+
+def refine_led_roi(frames: Iterable, roi) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """The LED's own pixels around a block found by :func:`led_brightness` (a second pass over the
+    frames): a block holds part of the LED and some background, whose compression artefacts at
+    the LED's border follow the blinking and bias the fit. The pixels within a block's size
+    around ``roi`` that brighten with the block by at least half as much as the most are kept;
+    their bounding box is the region.
+
+    Returns
+    -------
+    brightness : ndarray of float64, shape (N,)
+        Mean pixel value of the refined region per frame.
+    roi : (x0, y0, x1, y1)
+        The refined region (half-open); ``roi`` itself when the block never switched.
+    """
+    x0, y0, x1, y1 = (int(v) for v in roi)
+    bw, bh = x1 - x0, y1 - y0
+    crops, shape = [], None
+    for item in frames:
+        img = np.asarray(item[2] if isinstance(item, tuple) else item)
+        if img.ndim == 3:
+            img = img.mean(axis=2)
+        shape = shape or img.shape
+        crops.append(img[max(0, y0 - bh):y1 + bh, max(0, x0 - bw):x1 + bw].astype(np.float32))
+    if not crops:
+        raise SyncError("no frames given")
+    stack = np.stack(crops)
+    ox, oy = max(0, x0 - bw), max(0, y0 - bh)
+    block = stack[:, y0 - oy:y1 - oy, x0 - ox:x1 - ox].mean(axis=(1, 2))
+    on = block > 0.5 * (block.min() + block.max())
+    if on.all() or not on.any():
+        return block.astype(np.float64), (x0, y0, x1, y1)
+    swing = stack[on].mean(axis=0) - stack[~on].mean(axis=0)
+    ys, xs = np.nonzero(swing >= 0.5 * swing.max())
+    box = (ox + int(xs.min()), oy + int(ys.min()), ox + int(xs.max()) + 1, oy + int(ys.max()) + 1)
+    sel = stack[:, box[1] - oy:box[3] - oy, box[0] - ox:box[2] - ox]
+    return sel.mean(axis=(1, 2)).astype(np.float64), box
 
 
 def led_edges(brightness, t_frame_s, exposure_s: float, *, gamma: float = 2.2):
@@ -374,6 +421,10 @@ LEVEL_ERROR_SATURATED = 0.03
 """The same for an LED whose on level is saturated in the video (at or above :data:`SATURATED_DN`):
 the clipped noise pulls the on level down (by 2 % of the swing in the simulator's 120 fps clips)."""
 SATURATED_DN = 250.0
+MAX_DRIFT_PPM = 500.0
+"""Largest clock drift the frame fit accepts, ppm (quartz clocks drift tens of ppm; the edge
+matching searches 200 by default)."""
+
 CONTRADICTED_CHI2 = 25.0
 """A given exposure is contradicted by the LED frames when fitting the exposure too lowers their
 chi-square by more than this (5 sigma)."""
@@ -509,7 +560,13 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
     partial = bool(np.any((f > 0.02) & (f < 0.98)))
     if partial:  # frames that saw an edge during their exposure time it: fit everything together
         x_scale = [scale_e * 1e6 / 10, 10.0, 0.1, 0.1] + ([scale_e * 1e6 / 10] if fit_exposure else [])
-        sol = least_squares(residual, x0, loss="soft_l1", f_scale=3 * sigma_b, x_scale=x_scale)
+        # the drift stays within what clocks do (MAX_DRIFT_PPM): the start's, from a few matched
+        # edges of a short clip, can be thousands of ppm off, and the fit stays in that valley
+        lower = np.full(len(x0), -np.inf)
+        upper = np.full(len(x0), np.inf)
+        lower[1], upper[1] = -MAX_DRIFT_PPM, MAX_DRIFT_PPM
+        x0[1] = np.clip(x0[1], -MAX_DRIFT_PPM + 1e-6, MAX_DRIFT_PPM - 1e-6)
+        sol = least_squares(residual, x0, loss="soft_l1", f_scale=3 * sigma_b, x_scale=x_scale, bounds=(lower, upper))
         x, r, jac = sol.x, sol.fun, sol.jac
     else:  # every edge fell between two exposures: only the gaps bound them (the profile below)
         x, r, jac = x0, r0, None

@@ -226,7 +226,9 @@ def fit_time_map(session_dir, video, *, exposure_s=None, led_roi=None):
     s = open_session(session_dir)
     triggers = s.triggers()
     if len(triggers) >= MIN_SYNC_TRIGGERS:
-        brightness, _ = sync.led_brightness(video.frames(gray=True), roi=led_roi)
+        brightness, roi = sync.led_brightness(video.frames(gray=True), roi=led_roi)
+        if led_roi is None:  # the block found holds part of the LED: its own pixels
+            brightness, roi = sync.refine_led_roi(video.frames(gray=True), roi)
         try:
             return sync.fit_sync_box(brightness, video.t_s, triggers, exposure_s=exposure_s)
         except sync.SyncError:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calib.sync import (
-    exposure_span_s,
+    exposure_span_s, refine_led_roi,
     SyncError, TimeMap, fit_activity, fit_linear, fit_sync_box, frame_difference_energy, led_brightness,
 )
 from capture.events import make_triggers
@@ -192,3 +192,27 @@ def test_exposure_spans_end_together_with_one_exposure_per_frame():
     a, b = exposure_span_s(t, e)
     np.testing.assert_allclose(b, t + 1.5e-3)  # every exposure ends at the median after its frame time
     np.testing.assert_allclose(b - a, e)
+
+
+def test_the_led_is_found_beside_a_ball_passing_and_a_player_moving():
+    """Frames with a small blinking LED (6 x 5 px, a part of two search blocks), a bright ball
+    crossing the frame and a dark body swaying over whole blocks (the largest brightness spread
+    over time): the block search picks the LED's block and the refinement its own pixels."""
+    rng = np.random.default_rng(0)
+    n, h, w = 150, 240, 320
+    on = (np.arange(n) // 4 + rng.integers(0, 2, n)) % 3 == 0
+    frames = []
+    for k in range(n):
+        img = np.full((h, w), 150.0) + rng.normal(0, 2, (h, w))
+        x_body = int(150 + 60 * np.sin(k / 12))
+        img[120:200, x_body:x_body + 40] = 10  # a body swaying
+        x = int(k * w / n)
+        img[30:42, max(0, x - 6):x + 6] = 250  # the ball crossing once
+        img[11:16, 101:107] = 230 if on[k] else 90
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+    b, roi = led_brightness(frames)
+    x0, y0, x1, y1 = roi
+    assert x0 < 107 and x1 > 101 and y0 < 16 and y1 > 11  # a block holding the LED
+    b, roi = refine_led_roi(frames, roi)
+    assert roi == (101, 11, 107, 16)
+    assert np.array_equal(b > 160, on)
