@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import capture.raw as raw
-from capture.events import EVENT_DTYPE, make_events, make_triggers
+from capture.events import make_events, make_triggers
 
 
 def evt3(*words):

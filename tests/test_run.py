@@ -8,7 +8,6 @@ import time
 import warnings
 
 import numpy as np
-import pytest
 
 from capture import raw
 from capture.replay import main as replay_main
