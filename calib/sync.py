@@ -204,8 +204,8 @@ def refine_led_roi(frames: Iterable, roi) -> tuple[np.ndarray, tuple[int, int, i
     """The LED's own pixels around a block found by :func:`led_brightness` (a second pass over the
     frames): a block holds part of the LED and some background, whose compression artefacts at
     the LED's border follow the blinking and bias the fit. The pixels within a block's size
-    around ``roi`` that brighten with the block by at least half as much as the most are kept;
-    their bounding box is the region.
+    around ``roi`` that brighten with the block (frames near its two levels; a ball passing is
+    left out) by at least half as much as the most are kept; their bounding box is the region.
 
     Returns
     -------
@@ -228,10 +228,11 @@ def refine_led_roi(frames: Iterable, roi) -> tuple[np.ndarray, tuple[int, int, i
     stack = np.stack(crops)
     ox, oy = max(0, x0 - bw), max(0, y0 - bh)
     block = stack[:, y0 - oy:y1 - oy, x0 - ox:x1 - ox].mean(axis=(1, 2))
-    on = block > 0.5 * (block.min() + block.max())
-    if on.all() or not on.any():
+    lo, hi = np.percentile(block, [5, 95])  # the LED's two levels; a ball passing is beyond or between
+    on, off = np.abs(block - hi) <= 0.25 * (hi - lo), np.abs(block - lo) <= 0.25 * (hi - lo)
+    if hi <= lo or not on.any() or not off.any():
         return block.astype(np.float64), (x0, y0, x1, y1)
-    swing = stack[on].mean(axis=0) - stack[~on].mean(axis=0)
+    swing = stack[on].mean(axis=0) - stack[off].mean(axis=0)
     ys, xs = np.nonzero(swing >= 0.5 * swing.max())
     box = (ox + int(xs.min()), oy + int(ys.min()), ox + int(xs.max()) + 1, oy + int(ys.max()) + 1)
     sel = stack[:, box[1] - oy:box[3] - oy, box[0] - ox:box[2] - ox]
@@ -447,6 +448,8 @@ def exposure_span_s(t_frame_s, exposure_s) -> tuple[np.ndarray, np.ndarray]:
     """
     t = np.asarray(t_frame_s, np.float64)
     e = np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape)
+    if not np.all(np.isfinite(e) & (e >= 0)):
+        raise SyncError("exposures must be finite and not negative")
     end = t + (float(np.median(e)) if e.size else 0.0)
     return end - e, end
 
@@ -511,6 +514,8 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
     bl = (np.clip(np.asarray(brightness, np.float64), 0, None) / 255.0) ** gamma
     t = np.asarray(t_frame_s, np.float64)
     e0 = np.broadcast_to(np.asarray(exposure_s, np.float64), t.shape).copy()
+    if not np.all(np.isfinite(e0) & (e0 > 0)):
+        raise SyncError("exposures must be finite and positive")
     scale_e = float(np.median(e0))  # ē: the exposures end together at ē after the frame time
     knots = _on_time_knots(np.asarray(trig_t_us, np.float64), np.asarray(trig_p))
     y_lo, y_hi = knots[0][0], knots[0][-1]
@@ -548,7 +553,10 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
             out.append(float(np.sum((bl - lo - (hi - lo) * f)[mask] ** 2)))
         return np.asarray(out)
 
-    x0 = np.array([off0, start.drift_ppm, 0.0, 0.0] + ([scale_e * 1e6] if fit_exposure else []))
+    # the drift stays within what clocks do (MAX_DRIFT_PPM): the start's, from a few matched edges
+    # of a short clip, can be thousands of ppm off, and a fit started there stays in that valley
+    x0 = np.array([off0, np.clip(start.drift_ppm, -MAX_DRIFT_PPM, MAX_DRIFT_PPM), 0.0, 0.0]
+                  + ([scale_e * 1e6] if fit_exposure else []))
     every = np.ones(len(t), bool)
     if search_s > 0:  # a coarse scan of the offset, the levels solved for each
         grid = off0 + np.arange(-search_s, search_s + 1e-12, scale_e / 4) * 1e6
@@ -560,8 +568,6 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
     partial = bool(np.any((f > 0.02) & (f < 0.98)))
     if partial:  # frames that saw an edge during their exposure time it: fit everything together
         x_scale = [scale_e * 1e6 / 10, 10.0, 0.1, 0.1] + ([scale_e * 1e6 / 10] if fit_exposure else [])
-        # the drift stays within what clocks do (MAX_DRIFT_PPM): the start's, from a few matched
-        # edges of a short clip, can be thousands of ppm off, and the fit stays in that valley
         lower = np.full(len(x0), -np.inf)
         upper = np.full(len(x0), np.inf)
         lower[1], upper[1] = -MAX_DRIFT_PPM, MAX_DRIFT_PPM

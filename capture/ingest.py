@@ -233,7 +233,8 @@ def fit_time_map(session_dir, video, *, exposure_s=None, led_roi=None):
             return sync.fit_sync_box(brightness, video.t_s, triggers, exposure_s=exposure_s)
         except sync.SyncError:
             pass  # an LED that is not in view: fall back to activity correlation
-    exposure_s = float(np.median(exposure_s)) if exposure_s is not None else 1.0 / float(video.fps)
+    e = float(np.median(exposure_s)) if exposure_s is not None else 0.0
+    exposure_s = e if np.isfinite(e) and e > 0 else 1.0 / float(video.fps)
     energy = sync.frame_difference_energy(img for _, _, img in video.frames(gray=True))
     return sync.fit_activity(_event_times_sample(s), video.t_s, energy, exposure_s=exposure_s), exposure_s
 
@@ -270,11 +271,12 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
         first = first or target
     video = read_video(first)
     source, notes = ("given" if exposure_s is not None else "estimated"), []
-    samples = gpmf_samples(first)
-    meta = gpmf.frame_metadata(*samples) if samples is not None else None
+    metas = [gpmf.frame_metadata(*samples) if (samples := gpmf_samples(p)) is not None else None
+             for p in video.paths]
+    meta = next((m for m in metas if m is not None), None)
     per_frame = None
-    if meta is not None:
-        recorded = meta.exposure_at(video.t_s - video.t_s[0])
+    recorded = _recorded_exposures(video, metas, notes)
+    if recorded is not None:
         lo, hi = np.percentile(recorded, [5, 95])
         if exposure_s is None:  # each frame's own exposure (auto-exposure), unless one is typed
             per_frame, source = recorded, "gpmf"
@@ -283,9 +285,9 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
         elif hi > 1.05 * lo:
             notes.append(f"the camera's metadata says the exposure varied {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; the "
                          f"typed {exposure_s * 1e3:.3f} ms is used for every frame (leave --exposure out to use each frame's)")
-        skipped = int(np.count_nonzero(meta.frame_skips))
-        if skipped:
-            notes.append(f"{skipped} frames skipped or duplicated by the camera (GPMF MSKP)")
+    skipped = sum(int(np.count_nonzero(m.frame_skips)) for m in metas if m is not None)
+    if skipped:
+        notes.append(f"{skipped} frames skipped or duplicated by the camera (GPMF MSKP)")
     tm, exposure_s = fit_time_map(session_dir, video, exposure_s=per_frame if per_frame is not None else exposure_s,
                                   led_roi=led_roi)
     writer = update_session(session_dir)
@@ -294,13 +296,33 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
                                    "fps_num": video.fps_num, "fps_den": video.fps_den,
                                    "n_frames": video.n_frames, "exposure_s": float(exposure_s),
                                    "exposure_source": source,
-                                   "frame_skips": int(np.count_nonzero(meta.frame_skips)) if meta else None,
+                                   "frame_skips": skipped if meta else None,
                                    "readout": meta.readout if meta else None})
     writer.close()
     sigma = float(np.sqrt(max(tm.cov[0, 0], 0.0)))
     return (f"{video.n_frames} frames at {float(video.fps):.2f} fps aligned by {tm.method}: "
             f"video t=0 at event t={float(tm.to_event_us(0.0)) / 1e6:.6f} s, drift {tm.drift_ppm:+.1f} ppm, "
             f"±{sigma:.0f} µs" + "".join(f"; {n}" for n in notes))
+
+
+def _recorded_exposures(video, metas, notes: list[str]) -> np.ndarray | None:
+    """Each frame's exposure (s) from the GPMF of its own chapter; frames without a usable value
+    (a chapter without metadata; a zero, negative, non-finite or longer-than-two-frames value)
+    get the median of the others, and ``notes`` says how many. None when no frame has one."""
+    out = np.full(video.n_frames, np.nan)
+    starts = [*map(int, video.chapter_start), video.n_frames]
+    for k, m in enumerate(metas):
+        if m is not None and len(m.exposure_s):
+            i0, i1 = starts[k], starts[k + 1]
+            out[i0:i1] = m.exposure_at(video.t_s[i0:i1] - video.t_s[i0])
+    ok = np.isfinite(out) & (out > 0) & (out <= 2.0 / float(video.fps))
+    if not ok.any():
+        return None
+    if not ok.all():
+        notes.append(f"{int((~ok).sum())} of {len(out)} frames without a usable exposure in the camera's metadata "
+                     "(missing, zero or not a number): the others' median is used for them")
+        out[~ok] = np.median(out[ok])
+    return out
 
 
 def session_from_raw(raw_path, session_dir, mp4_path=None, *, progress: bool = True, led_roi=None,

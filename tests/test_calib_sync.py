@@ -216,3 +216,31 @@ def test_the_led_is_found_beside_a_ball_passing_and_a_player_moving():
     b, roi = refine_led_roi(frames, roi)
     assert roi == (101, 11, 107, 16)
     assert np.array_equal(b > 160, on)
+
+
+def test_the_led_region_is_not_taken_over_by_a_ball_passing_next_to_it():
+    """A bright ball passes over the LED's neighbourhood for 4 of 120 frames: the LED's own pixels
+    are kept (the frames far from its two levels are left out of the refinement)."""
+    h, w = 360, 640
+    yy, xx = np.mgrid[0:h, 0:w]
+    rng = np.random.default_rng(0)
+    on = np.array([(k // 3) % 2 == 0 or k % 7 == 0 for k in range(120)])
+    frames = []
+    for k in range(120):
+        img = np.full((h, w), 60.0) + rng.normal(0, 2, (h, w))
+        if on[k]:
+            img[100:106, 200:206] = 250
+        if 50 <= k <= 53:
+            img[(xx - 170 - 20 * (k - 50)) ** 2 + (yy - 103) ** 2 <= 12 ** 2] = 230
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+    _, roi = led_brightness(frames)
+    b, roi = refine_led_roi(frames, roi)
+    assert roi == (200, 100, 206, 106)
+    assert np.corrcoef(b, on)[0, 1] > 0.95
+
+
+def test_exposures_that_are_not_finite_and_positive_are_refused_in_one_line():
+    t = np.arange(5) / 240.0
+    for bad in ([1e-3, np.nan, 1e-3, 1e-3, 1e-3], [1e-3, -1e-3, 1e-3, 1e-3, 1e-3]):
+        with pytest.raises(SyncError, match="finite"):
+            exposure_span_s(t, bad)

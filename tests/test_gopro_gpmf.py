@@ -67,3 +67,20 @@ def test_a_clips_last_payload_is_shorter_and_its_frames_keep_their_exposure(tmp_
     np.testing.assert_allclose(dur, [10 / 240, 10 / 240, 5 / 240], atol=1e-4)
     meta = gpmf.frame_metadata(got, start, dur)
     np.testing.assert_allclose(meta.exposure_at(np.arange(25) / 240), exposure, rtol=1e-6)
+
+
+def test_each_chapters_frames_take_their_own_chapters_exposures_and_unusable_values_are_said():
+    from types import SimpleNamespace
+
+    from capture.ingest import _recorded_exposures
+
+    video = SimpleNamespace(n_frames=12, chapter_start=np.array([0, 4, 8]), t_s=np.arange(12) / 240.0, fps=240.0)
+    ms = 1e-3
+    first = gpmf.FrameMetadata(np.arange(4) / 240.0, np.array([1.0, 0.0, np.nan, 2.0]) * ms, np.zeros(0), np.zeros(0), None)
+    second = gpmf.FrameMetadata(np.arange(4) / 240.0, np.array([3.0, 3.5, 3.0, 3.5]) * ms, np.zeros(0), np.zeros(0), None)
+    notes = []
+    got = _recorded_exposures(video, [first, second, None], notes)  # the third chapter has no metadata
+    median = np.median([1.0, 2.0, 3.0, 3.5, 3.0, 3.5]) * ms
+    np.testing.assert_allclose(got, [1 * ms, median, median, 2 * ms, 3 * ms, 3.5 * ms, 3 * ms, 3.5 * ms] + [median] * 4)
+    assert len(notes) == 1 and notes[0].startswith("6 of 12 frames without a usable exposure")
+    assert _recorded_exposures(video, [None, None, None], []) is None
