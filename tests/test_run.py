@@ -82,6 +82,9 @@ def test_killed_recorder_leaves_a_replayable_session(shared_raw_dir, tmp_path):
     assert 0 < n < len(ref)
     assert np.array_equal(s.events(), ref[:n])
     assert s.cut_short and "capture.ingest recover" in s.damage
+    again = subprocess.run([sys.executable, "-m", "capture.run", "--fake", str(src), "--out", str(out), "--viewer", "none",
+                            "--quiet"], capture_output=True, text=True)  # recording into it again: refused, and told why
+    assert again.returncode == 1 and "capture.ingest recover" in again.stderr and len(again.stderr.strip().splitlines()) == 1
     with warnings.catch_warnings():  # the kill may cut the RAW file's last word short
         warnings.simplefilter("ignore")
         received = raw.read(out / "events.raw")

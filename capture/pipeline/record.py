@@ -20,7 +20,8 @@ from capture.evk.errors import EvkConnectionError
 from capture.ingest import attach_video
 from capture.pipeline.live import LiveAnalysis
 from capture.review import LiveReview, ReviewError
-from capture.session import StoreBehind, create_session, disk_free_bytes, unfinished_session
+from capture.session import (SessionError, StoreBehind, create_session, disk_free_bytes, open_session,
+                             unfinished_session)
 
 RAW_NAME = "events.raw"
 """The exact byte stream from the sensor, with a RAW header, inside the session directory."""
@@ -184,7 +185,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     stop = stop or threading.Event()
     out = Path(settings.out)
     if out.exists() and any(out.iterdir()) and not unfinished_session(out):
-        raise RecorderError(f"{out}: already exists and is not empty; choose another --out")
+        raise RecorderError(f"{out}: already exists and is not empty; choose another --out" + _cut_short_hint(out))
     out.mkdir(parents=True, exist_ok=True)
     if disk_free_bytes(out) < settings.min_free_bytes:
         raise RecorderError(f"{out}: only {disk_free_bytes(out) / 2**20:.0f} MiB free on disk")
@@ -295,6 +296,16 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     return RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
                         live.state.skipped_events, reason, messages=messages,
                         error=device_error or store_error)
+
+
+def _cut_short_hint(out: Path) -> str:
+    """What to do with a directory that holds a recording cut short (killed, crashed)."""
+    try:
+        if open_session(out).cut_short:
+            return f" (it holds a recording cut short: `python -m capture.ingest recover {out}` completes it)"
+    except SessionError:
+        pass
+    return ""
 
 
 def _flush_if_due(writer, lock: threading.Lock, on_error) -> None:
