@@ -44,6 +44,8 @@ def _run(args) -> None:
     kind, diameter = (ball["type"], ball["diameter_m"]) if ball else stored_ball(session)
     flights, windows = session_results(session, ball_diameter_m=diameter, ball_type=kind)
     print(format_flight_table(flights))
+    if session.damage:  # what the store lacks (a recording cut short, events left out): the table is of the rest
+        print(f"note: {session.damage}")
     if diameter and len(flights["flight"]) and np.isnan(flights["speed_m_s"].astype(float)).all():
         print("note: no calibration of the event camera in the session: no distances or speeds")
     if args.csv:

@@ -757,9 +757,15 @@ def _create_store(path: Path, root_attrs: dict, flush_interval_s: float, lock: i
     return SessionWriter(root, path, flush_interval_s, reserve=reserve, lock=lock)
 
 
-def _lock_writer(path: Path) -> int | None:
+LOCK_TRIES = 25
+"""Tries, 20 ms apart, to take a session's one-writer lock before saying it is being written."""
+
+
+def _lock_writer(path: Path, shared: bool = False) -> int | None:
     """Take the session directory's one-writer lock (``flock``; the system releases it when the
-    process ends, also on a kill); returns its descriptor for :func:`_unlock`.
+    process ends, also on a kill); returns its descriptor for :func:`_unlock`. A writer tries for
+    half a second (a probe may hold it for an instant); ``shared`` takes it shared, once (the
+    probe of :func:`being_written`).
 
     Raises
     ------
@@ -769,15 +775,18 @@ def _lock_writer(path: Path) -> int | None:
     if fcntl is None:  # pragma: no cover
         return None
     fd = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        os.close(fd)
-        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-            raise SessionError(f"{path}: the session is being written by another program "
-                               "(a recording or a replay still running)") from None
-        raise
-    return fd
+    for attempt in range(LOCK_TRIES):  # a reader's probe (being_written) holds it for an instant
+        try:
+            fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
+            return fd
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES) or shared or attempt == LOCK_TRIES - 1:
+                os.close(fd)
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise SessionError(f"{path}: the session is being written by another program "
+                                       "(a recording or a replay still running)") from None
+                raise
+            time.sleep(0.02)
 
 
 def _unlock(fd: int | None) -> None:
@@ -793,7 +802,7 @@ def being_written(path) -> bool:
     if fcntl is None or not path.is_dir():  # pragma: no cover
         return False
     try:
-        _unlock(_lock_writer(path))
+        _unlock(_lock_writer(path, shared=True))  # shared: probes do not exclude one another
     except SessionError:
         return True
     return False

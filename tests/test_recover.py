@@ -154,3 +154,20 @@ def test_a_corrupted_event_at_the_stores_last_time_does_not_misplace_the_recover
     recover_session(out, progress=False, chunk_bytes=256)
     got = open_session(out).events()
     assert np.array_equal(got, np.delete(ev, spike))  # each event once, in order
+
+
+def test_a_writer_is_not_refused_because_a_reader_looked_at_that_instant(tmp_path):
+    """``being_written`` probes with a shared lock for an instant; a writer opening meanwhile waits
+    for it rather than saying that the session is being written."""
+    import threading
+
+    from capture import session as S
+
+    with create_session(tmp_path / "s", width=64, height=48):
+        pass
+    probe = S._lock_writer(tmp_path / "s", shared=True)
+    threading.Timer(0.1, S._unlock, args=(probe,)).start()
+    with update_session(tmp_path / "s") as w:  # opened once the probe let go
+        w.set_attrs(note="x")
+    assert open_session(tmp_path / "s").attrs["note"] == "x"
+    assert not S.being_written(tmp_path / "s")

@@ -228,6 +228,11 @@ def test_report_cli_prints_the_table_and_refuses_an_unanalysed_session(tmp_path,
         w.set_attrs(ball={"type": "volleyball", "diameter_m": 0.21})  # as capture.run --ball records it
     assert report_main([str(path)]) == 0
     assert "no calibration" in capsys.readouterr().out  # the recorded ball asks for distances and speeds
+    (path / "events.raw").write_bytes(b"")
+    with update_session(path) as w:  # a recording that was never closed by its recorder
+        w.set_attrs(raw_file="events.raw")
+    assert report_main([str(path)]) == 0
+    assert "note: the recording was cut short" in capsys.readouterr().out  # the table is of what was stored
 
 
 def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_path):
