@@ -780,13 +780,15 @@ def _lock_writer(path: Path, shared: bool = False) -> int | None:
             fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
             return fd
         except OSError as exc:
-            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES) or shared or attempt == LOCK_TRIES - 1:
-                os.close(fd)
-                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    raise SessionError(f"{path}: the session is being written by another program "
-                                       "(a recording or a replay still running)") from None
-                raise
-            time.sleep(0.02)
+            held = exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+            if held and not shared and attempt < LOCK_TRIES - 1:
+                time.sleep(0.02)
+                continue
+            os.close(fd)
+            if held:
+                raise SessionError(f"{path}: the session is being written by another program "
+                                   "(a recording or a replay still running)") from None
+            return None  # a file system without flock (ENOLCK on some network mounts): unlocked
 
 
 def _unlock(fd: int | None) -> None:

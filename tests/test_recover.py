@@ -171,3 +171,19 @@ def test_a_writer_is_not_refused_because_a_reader_looked_at_that_instant(tmp_pat
         w.set_attrs(note="x")
     assert open_session(tmp_path / "s").attrs["note"] == "x"
     assert not S.being_written(tmp_path / "s")
+
+
+def test_a_file_system_without_flock_still_records_unlocked(tmp_path, monkeypatch):
+    """Some network mounts answer flock with ENOLCK: sessions are written there, without the lock."""
+    import errno
+
+    from capture import session as S
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(S.fcntl, "flock", no_locks)
+    with create_session(tmp_path / "s", width=64, height=48) as w:
+        w.set_attrs(note="x")
+        assert not S.being_written(tmp_path / "s")  # nothing to tell it by
+    assert open_session(tmp_path / "s").attrs["note"] == "x"
