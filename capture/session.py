@@ -807,6 +807,8 @@ def being_written(path) -> bool:
         _unlock(_lock_writer(path, shared=True))  # shared: probes do not exclude one another
     except SessionError:
         return True
+    except OSError:  # a directory this user cannot open: no writer of theirs either
+        return False
     return False
 
 
