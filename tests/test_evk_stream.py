@@ -210,3 +210,27 @@ def test_cli_usage_errors_exit_2(tmp_path, option, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["record", str(tmp_path / "x.raw"), *option])
     assert exc.value.code == 2 and "python -m capture.evk record: error:" in capsys.readouterr().err
+
+
+def test_drops_are_counted_while_recording_for_a_watcher(tmp_path, shared_raw_dir):
+    """``RecordStats`` passed in is kept current: a watcher (the recorder's status line) sees the
+    drops while the stream is still being written, not only in the totals set at its end."""
+    src = shared_raw_dir / SAMPLE
+    progress = evk.RecordStats(raw_path=tmp_path / "rec.raw")
+    seen = []
+    fake = FakeEVK(src, packet_bytes=8192)
+    with evk.open(backend=fake) as cam:
+        cam.queue_bytes = 100_000
+        cam.start()
+        cam.reader.join(10)  # the reader reads the whole file before anyone consumes: drops
+        queue = cam.reader.queue
+        get = queue.get
+
+        def get_and_look(*args):  # the recorder's loop asks for its next item: still streaming
+            seen.append(progress.dropped_bytes)
+            return get(*args)
+
+        queue.get = get_and_look
+        stats = evk.record(cam, tmp_path / "rec.raw", stats=progress)
+    assert stats is progress and stats.dropped_bytes > 0
+    assert max(seen) > 0  # seen while streaming

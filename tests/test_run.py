@@ -163,3 +163,22 @@ def test_live_analysis_gives_way_when_decoding_falls_behind(shared_raw_dir, tmp_
             assert result.skipped_live_events == len(ref)
         else:  # offered to the live analysis (which may still skip a batch when its own queue is full)
             assert result.skipped_live_events < len(ref)
+
+
+def test_the_status_line_shows_drops_and_time_jumps_as_they_happen(tmp_path, capsys):
+    import threading
+    from types import SimpleNamespace
+
+    from capture import evk
+    from capture.pipeline.record import RecordSettings, _Status
+
+    progress = evk.RecordStats(raw_path=tmp_path / "events.raw", overflows=3, dropped_bytes=1_200_000, time_jumps=2)
+    live = SimpleNamespace(state=SimpleNamespace(ball=None, spin=None, skipped_events=0))
+    status = _Status(RecordSettings(out=tmp_path), {"events": 0}, live, threading.Event(), period_s=0.01,
+                     tick_s=0.005, progress=progress)
+    status.start()
+    time.sleep(0.1)
+    status.done.set()
+    status.join()
+    err = capsys.readouterr().err
+    assert "drops 3 (1.2 MB lost)" in err and "time jumps 2" in err

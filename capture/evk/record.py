@@ -191,7 +191,8 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         Wall-clock limit on streaming, seconds.
     stats : RecordStats, optional
         Filled in as the recording goes, for a caller that watches it from another thread
-        (``decode_backlog_bytes``); a new one otherwise.
+        (``decode_backlog_bytes``, ``overflows``, ``dropped_bytes``, ``time_jumps``); a new one
+        otherwise.
 
     Returns
     -------
@@ -232,6 +233,8 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                     break
                 if isinstance(item, Gap):
                     stats.gaps.append((stats.payload_bytes, item.nbytes))
+                    stats.overflows += 1  # kept current for a caller watching (the reader's totals at the end)
+                    stats.dropped_bytes += item.nbytes
                     if monitor is not None:
                         monitor.reset()
                 elif item is not None:
@@ -240,6 +243,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                     stats.payload_bytes += item.nbytes
                     if monitor is not None:
                         monitor.feed(data)
+                        stats.time_jumps = monitor.jumps
                     reader.release(item)
                     if decode is not None:
                         decode.written(stats.payload_bytes)

@@ -117,9 +117,10 @@ class _Status(threading.Thread):
     ``period_s`` prints a status line and stops the recording when the disk is nearly full."""
 
     def __init__(self, settings: RecordSettings, counters: dict, live, stop: threading.Event,
-                 period_s: float = 0.5, flush=None, tick_s: float = 0.05):
+                 period_s: float = 0.5, flush=None, tick_s: float = 0.05, progress=None):
         super().__init__(name="status", daemon=True)
         self.settings, self.counters, self.live, self.stop_event = settings, counters, live, stop
+        self.progress = progress  # evk.RecordStats, kept current by evk.record: drops as they happen
         self.flush = flush
         self.period_s = period_s
         self.tick_s = tick_s
@@ -150,8 +151,12 @@ class _Status(threading.Thread):
                 self.stop_event.set()
             if self.settings.quiet:
                 continue
-            line = (f"{now - t_start:6.1f} s  {rate / 1e6:6.2f} Mev/s  {n / 1e6:8.2f} Mev  "
-                    f"drops {self.counters['drops']}  disk {free / 2**30:.1f} GiB free  ")
+            line = f"{now - t_start:6.1f} s  {rate / 1e6:6.2f} Mev/s  {n / 1e6:8.2f} Mev  "
+            if self.progress is not None:
+                pr = self.progress
+                line += (f"drops {pr.overflows} ({pr.dropped_bytes / 1e6:.1f} MB lost)  " if pr.overflows
+                         else "drops 0  ") + (f"time jumps {pr.time_jumps}  " if pr.time_jumps else "")
+            line += f"disk {free / 2**30:.1f} GiB free  "
             st = self.live.state
             line += (f"ball ({st.ball[1]:.0f},{st.ball[2]:.0f}) r {st.ball[3]:.0f}  " if st.ball else "no ball  ")
             if st.spin is not None:
@@ -246,7 +251,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
 
         if settings.gopro is not None:
             gopro_media = _gopro_start(settings, messages)
-        status = _Status(settings, counters, live, stop,
+        status = _Status(settings, counters, live, stop, progress=progress,
                          flush=lambda: _flush_if_due(writer, lock, _write_failed))
         status.start()
         _log(settings, f"Recording {info.board} {info.sensor} {info.width}x{info.height} "
