@@ -341,3 +341,27 @@ def test_fake_refuses_files_it_cannot_present(tmp_path, capsys, content, match):
     assert main(["record", str(tmp_path / "out.raw"), "--fake", str(src)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and match in err[0] and not (tmp_path / "out.raw").exists()
+
+
+def test_imx636_temperature_register_traffic_is_the_hals():
+    # TzImx636::get_temperature (OpenEB): adc_clk_en <- 1, adc_temp <- 1, adc_start <- 1 (each a
+    # read-modify-write); adc_done_dyn and adc_dac_dyn read (one register read each) until done;
+    # adc_clk_en <- 0; 0.190 x dac - 56 °C.
+    fake, cam = opened(sensor="imx636")
+    fake.temperature_c = 41.3
+    n = len(fake.register_log())
+    t = cam.temperature_c()
+    assert abs(t - 41.3) <= 0.19 / 2 + 1e-9
+    log = [e[:1] + e[2:3] for e in fake.register_log()[n:]]
+    assert log == [("R", 0x004C), ("W", 0x004C), ("R", 0x0054), ("W", 0x0054), ("R", 0x004C), ("W", 0x004C),
+                   ("R", 0x0050), ("R", 0x0050), ("R", 0x004C), ("W", 0x004C)]
+    assert fake.registers[0x004C] & 0b110 == 0  # clock off, start cleared
+    cam.close()
+
+
+@pytest.mark.parametrize("sensor", ["gen41", "gen31"])
+def test_sensors_without_a_temperature_say_so(sensor):
+    _, cam = opened(sensor=sensor)
+    with pytest.raises(evk.EvkError, match="reports no temperature"):
+        cam.temperature_c()
+    cam.close()

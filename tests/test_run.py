@@ -36,6 +36,9 @@ def test_fake_recording_keeps_every_event_and_byte(shared_raw_dir, tmp_path):
     assert payload == src_bytes[raw.parse_header(src_bytes)[1]:]
     assert np.array_equal(raw.read(out / "events.raw").events, ref.events)
     assert s.attrs["sensor"]["width"] == 1280 and s.attrs["sensor"]["height"] == 720
+    # the fake IMX636's die temperature (38 °C) at the start and at the end, from its ADC
+    assert abs(s.attrs["sensor"]["temperature_c"] - 38.0) <= 0.1
+    assert abs(s.attrs["recording"]["temperature_c"] - 38.0) <= 0.1
 
 
 def test_bad_arguments_give_one_line_errors(tmp_path, capsys):

@@ -443,6 +443,20 @@ class Camera:
             raise EvkError(f"the {self.sensor.name} has no anti-flicker block")
         self.sensor.set_anti_flicker(band_hz)
 
+    def temperature_c(self) -> float:
+        """The sensor's die temperature, °C (IMX636 / EVK4; its ADC's resolution is 0.19 °C).
+
+        Raises
+        ------
+        EvkError
+            On a sensor the HAL reads no temperature from (Gen3.1, Gen4.1 on an EVK3), or when
+            the ADC reports no conversion.
+        """
+        read = getattr(self.sensor, "temperature_c", None)
+        if read is None:
+            raise EvkError(f"the {self.sensor.name} reports no temperature")
+        return read()
+
     def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
         """Gen3.1 only: drop events while the rate is below ``min_event_rate_ev_s`` (its NFL);
         ``None`` disables it.

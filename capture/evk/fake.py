@@ -224,6 +224,8 @@ class FakeEVK(usb.backend.IBackend):
         Report a kernel driver bound to interface 0 (the driver must detach it).
     realtime_delays : bool
         Really sleep the driver's sequence delays (default: only record them).
+    temperature_c : float
+        Die temperature the IMX636's ADC converts, °C.
     """
 
     def __init__(
@@ -249,6 +251,7 @@ class FakeEVK(usb.backend.IBackend):
         busy: bool = False,
         kernel_driver_active: bool = False,
         realtime_delays: bool = False,
+        temperature_c: float = 38.0,
     ):
         if sensor not in _SENSORS:
             raise ValueError(f"sensor must be one of {sorted(_SENSORS)}, got {sensor!r}")
@@ -269,6 +272,7 @@ class FakeEVK(usb.backend.IBackend):
         self.busy = busy
         self.faults = dict(faults or {})
         self.realtime_delays = realtime_delays
+        self.temperature_c = float(temperature_c)
         self._kernel_driver = kernel_driver_active
         self.devices = [(spec["compatible"], spec["name"])] + [((c,), n) for c, n in extra_devices]
         self.registers: dict[int, int] = dict(spec["registers"])
@@ -531,6 +535,8 @@ class FakeEVK(usb.backend.IBackend):
                     for i, value in enumerate(w[2:]):
                         self.registers[address + 4 * i] = value
                         self.log.append(("W", device, address + 4 * i, value))
+                        if self.sensor == "imx636" and address + 4 * i == seq_imx636.ADC_CONTROL:
+                            self._adc_convert()
                 return ok(struct.pack("<II", device, address))
             count = w[2]
             values = []
@@ -560,6 +566,16 @@ class FakeEVK(usb.backend.IBackend):
             strings = (name,) if base == PROP_DEVICE_NAME else compatible
             return ok(payload[:4] + b"".join(s.encode("ascii") + b"\0" for s in strings))
         return struct.pack("<II", FLAG_FAILURE, 0)
+
+    def _adc_convert(self) -> None:
+        """The IMX636's ADC: a start with its clock on and the temperature input selected leaves
+        the die temperature (``temperature_c``) in ``adc_status`` with the done flag."""
+        s = seq_imx636
+        ctrl, misc = self.registers.get(s.ADC_CONTROL, 0), self.registers.get(s.ADC_MISC_CTRL, 0)
+        if ctrl & 0b110 == 0b110 and misc >> 12 & 1:
+            dac = int(round((self.temperature_c - s.TEMPERATURE_OFFSET_C) / s.TEMPERATURE_C_PER_STEP)) & 0x3FF
+            self.registers[s.ADC_STATUS] = 1 << 11 | dac
+            self.registers[s.ADC_CONTROL] = ctrl & ~(1 << 2)  # the start bit clears itself
 
     # ---- data endpoint ------------------------------------------------------------------
     def _limit(self) -> int:

@@ -212,6 +212,29 @@ class Imx636:
         ))
         self.anti_flicker_hz = (low, high)
 
+    # ---- temperature ----------------------------------------------------------------------
+    def temperature_c(self) -> float:
+        """Die temperature, °C, from the sensor's ADC, with the HAL's register traffic
+        (``TzImx636::get_temperature``): ADC clock on, temperature input, start; the done flag and
+        value polled up to five times (each a read of ``adc_status``); ADC clock off.
+
+        Raises
+        ------
+        EvkError
+            The ADC did not report a conversion done.
+        """
+        s = seq_imx636
+        self.run((("RMW", s.ADC_CONTROL, 1 << 1, 1 << 1), ("RMW", s.ADC_MISC_CTRL, 1 << 12, 1 << 12),
+                  ("RMW", s.ADC_CONTROL, 1 << 2, 1 << 2)))
+        for _ in range(5):
+            done, value = self.run((("R", s.ADC_STATUS), ("R", s.ADC_STATUS)))
+            if done >> 11 & 1:
+                break
+        else:
+            raise EvkError(f"{self.name} temperature ADC did not report a conversion (register 0x{s.ADC_STATUS:04X})")
+        self.run((("RMW", s.ADC_CONTROL, 0, 1 << 1),))
+        return s.TEMPERATURE_C_PER_STEP * (value & 0x3FF) + s.TEMPERATURE_OFFSET_C
+
     # ---- ERC ----------------------------------------------------------------------------
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
         """Cap the sensor's output at ``max_event_rate_ev_s`` (events/s); ``None`` disables."""
@@ -243,6 +266,7 @@ class Gen41(Imx636):
     name = "Gen4.1"
     compatible = ("psee,ccam5_gen41",)
     seq = seq_gen41
+    temperature_c = None  # the HAL reads no temperature from a Gen4.1 behind the CX3 (EVK3 HD)
 
     @classmethod
     def probe(cls, link: TzLink, device: int) -> bool:

@@ -244,6 +244,11 @@ AFK_INITIALIZATION = 0xC0C4  # afk_flag_init_done [2]
 AFK_BAND_HZ = (50, 520)  # the HAL's supported frequencies
 AFK_DEFAULTS = {"inverted_duty_cycle": 8, "counter_high": 6, "counter_low": 4}  # 50 % duty, hysteresis
 
+ADC_CONTROL = 0x004C  # adc_en [0], adc_clk_en [1], adc_start [2]
+ADC_STATUS = 0x0050  # adc_dac_dyn [9:0], adc_done_dyn [11]
+ADC_MISC_CTRL = 0x0054  # adc_buf_cal_en [1], adc_temp [12]
+TEMPERATURE_C_PER_STEP, TEMPERATURE_OFFSET_C = 0.190, -56.0  # the HAL's get_temperature: 0.190 x dac - 56
+
 CHIP_ID_ADDRESS = 0x0014
 CHIP_ID = 0xA0401806
 VARIANT_ADDRESS = 0xF128  # bits [1:0]: 0 = IMX636, 2 = IMX646

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from capture import evk
-from capture.evk.errors import EvkConnectionError
+from capture.evk.errors import EvkConnectionError, EvkError
 from capture.ingest import attach_video
 from capture.pipeline.live import LiveAnalysis
 from capture.review import LiveReview, ReviewError
@@ -213,7 +213,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                             "format": info.format, "firmware": info.firmware,
                             "width": info.width, "height": info.height,
                             "biases": camera.get_biases(), "erc_ev_s": settings.erc_ev_s,
-                            "anti_flicker_hz": settings.anti_flicker_hz},
+                            "anti_flicker_hz": settings.anti_flicker_hz,
+                            "temperature_c": _temperature_c(camera)},
                  "raw_file": RAW_NAME, **settings.attrs}
         writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
                                 flush_interval_s=settings.flush_interval_s)
@@ -288,7 +289,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
         if store is not None:
             store.close()
         store_error = _finalise(writer, live, review, stats, reason, lock, messages,
-                                raw_write_error=str(write_error[0]) if raw_error else None)
+                                raw_write_error=str(write_error[0]) if raw_error else None,
+                                temperature_c=_temperature_c(camera) if device_error is None else None)
         camera.close()
         if gopro_media is not None:
             _gopro_finish(settings, gopro_media, out, messages)
@@ -301,6 +303,15 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     return RecordResult(out, counters["events"], counters["triggers"], counters["drops"],
                         live.state.skipped_events, reason, messages=messages,
                         error=device_error or store_error)
+
+
+def _temperature_c(camera) -> float | None:
+    """The sensor's die temperature, °C (rounded to 0.1), or None where it reports none or the
+    reading fails (the recording does not depend on it)."""
+    try:
+        return round(float(camera.temperature_c()), 1)
+    except (EvkError, OSError, ValueError):
+        return None
 
 
 def _cut_short_hint(out: Path) -> str:
@@ -324,11 +335,12 @@ def _flush_if_due(writer, lock: threading.Lock, on_error) -> None:
 
 
 def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, messages: list[str],
-              raw_write_error: str | None = None) -> str | None:
+              raw_write_error: str | None = None, temperature_c: float | None = None) -> str | None:
     """Stop live analysis and viewer, then flush, describe and close the session store; the
     one-line error when the store could not hold everything (or could not be closed).
     ``raw_write_error``: the RAW file could not be written; the store is marked as possibly
-    behind it (``recording.raw_write_error``)."""
+    behind it (``recording.raw_write_error``). ``temperature_c``: the sensor's at the end, °C
+    (``recording.temperature_c``)."""
     if live is not None:
         live.close()
         if live.error is not None:
@@ -356,6 +368,8 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
                          payload_bytes=int(stats.payload_bytes))
     if raw_write_error:
         recording["raw_write_error"] = " ".join(raw_write_error.split())
+    if temperature_c is not None:
+        recording["temperature_c"] = temperature_c
     if writer.n_out_of_order:
         recording["out_of_order_events"] = int(writer.n_out_of_order)
         messages.append(f"{writer.n_out_of_order} events with times out of order (corrupted words) left out "
