@@ -364,4 +364,22 @@ def test_sensors_without_a_temperature_say_so(sensor):
     _, cam = opened(sensor=sensor)
     with pytest.raises(evk.EvkError, match="reports no temperature"):
         cam.temperature_c()
+    with pytest.raises(evk.EvkError, match="reports no light level"):
+        cam.illuminance_lux()
+    cam.close()
+
+
+def test_imx636_light_level_register_traffic_is_the_hals():
+    # TzImx636::get_illumination (OpenEB): lifo_status read until lifo_ton_valid (up to 10 times);
+    # 10 ** (3.5 - log10(0.37 * counter / 100)) lux.
+    fake, cam = opened(sensor="imx636", illuminance_lux=650.0)
+    n = len(fake.register_log())
+    lux = cam.illuminance_lux()
+    assert abs(lux / 650.0 - 1) < 0.002  # the counter's rounding
+    assert [e[:1] + e[2:3] for e in fake.register_log()[n:]] == [("R", 0x0010)]
+    fake.registers[0x000C] = 0  # the LIFO not counting: never valid
+    fake.registers[0x0010] = 0
+    with pytest.raises(evk.EvkError, match="light counter did not report"):
+        cam.illuminance_lux()
+    assert [e[:1] + e[2:3] for e in fake.register_log()[n + 1:]] == [("R", 0x0010)] * 10
     cam.close()

@@ -39,6 +39,7 @@ def test_fake_recording_keeps_every_event_and_byte(shared_raw_dir, tmp_path):
     # the fake IMX636's die temperature (38 °C) at the start and at the end, from its ADC
     assert abs(s.attrs["sensor"]["temperature_c"] - 38.0) <= 0.1
     assert abs(s.attrs["recording"]["temperature_c"] - 38.0) <= 0.1
+    assert abs(s.attrs["sensor"]["illuminance_lux"] - 800.0) <= 2  # and the fake's light level
 
 
 def test_bad_arguments_give_one_line_errors(tmp_path, capsys):

@@ -457,6 +457,21 @@ class Camera:
             raise EvkError(f"the {self.sensor.name} reports no temperature")
         return read()
 
+    def illuminance_lux(self) -> float:
+        """The light level on the sensor, lux (IMX636 / EVK4: the HAL's conversion of its LIFO
+        on-time counter; a rough figure, uncalibrated per unit).
+
+        Raises
+        ------
+        EvkError
+            On a sensor the HAL reads no light level from (Gen3.1, Gen4.1 on an EVK3), or when
+            the counter gives none.
+        """
+        read = getattr(self.sensor, "illuminance_lux", None)
+        if read is None:
+            raise EvkError(f"the {self.sensor.name} reports no light level")
+        return read()
+
     def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
         """Gen3.1 only: drop events while the rate is below ``min_event_rate_ev_s`` (its NFL);
         ``None`` disables it.

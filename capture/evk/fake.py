@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import array
 import errno
+import math
 import struct
 import threading
 import time
@@ -226,6 +227,8 @@ class FakeEVK(usb.backend.IBackend):
         Really sleep the driver's sequence delays (default: only record them).
     temperature_c : float
         Die temperature the IMX636's ADC converts, °C.
+    illuminance_lux : float
+        Light level whose LIFO on-time count the IMX636 reports, lux.
     """
 
     def __init__(
@@ -252,6 +255,7 @@ class FakeEVK(usb.backend.IBackend):
         kernel_driver_active: bool = False,
         realtime_delays: bool = False,
         temperature_c: float = 38.0,
+        illuminance_lux: float = 800.0,
     ):
         if sensor not in _SENSORS:
             raise ValueError(f"sensor must be one of {sorted(_SENSORS)}, got {sensor!r}")
@@ -273,6 +277,7 @@ class FakeEVK(usb.backend.IBackend):
         self.faults = dict(faults or {})
         self.realtime_delays = realtime_delays
         self.temperature_c = float(temperature_c)
+        self.illuminance_lux = float(illuminance_lux)
         self._kernel_driver = kernel_driver_active
         self.devices = [(spec["compatible"], spec["name"])] + [((c,), n) for c, n in extra_devices]
         self.registers: dict[int, int] = dict(spec["registers"])
@@ -542,6 +547,8 @@ class FakeEVK(usb.backend.IBackend):
             values = []
             with self._lock:
                 for i in range(count):
+                    if self.sensor == "imx636" and address + 4 * i == seq_imx636.LIFO_STATUS:
+                        self._lifo_count()
                     values.append(self.registers.get(address + 4 * i, 0))
                     self.log.append(("R", device, address + 4 * i))
             return ok(struct.pack(f"<II{count}I", device, address, *values))
@@ -576,6 +583,14 @@ class FakeEVK(usb.backend.IBackend):
             dac = int(round((self.temperature_c - s.TEMPERATURE_OFFSET_C) / s.TEMPERATURE_C_PER_STEP)) & 0x3FF
             self.registers[s.ADC_STATUS] = 1 << 11 | dac
             self.registers[s.ADC_CONTROL] = ctrl & ~(1 << 2)  # the start bit clears itself
+
+    def _lifo_count(self) -> None:
+        """The IMX636's LIFO light counter, counting (lifo_en and lifo_cnt_en set): the on-time
+        count that the HAL's conversion turns into ``illuminance_lux``, flagged valid."""
+        s = seq_imx636
+        if self.registers.get(s.LIFO_CONTROL, 0) & 0b101 == 0b101 and self.illuminance_lux > 0:
+            counter = int(round(100.0 * 10.0 ** (3.5 - math.log10(self.illuminance_lux)) / 0.37))
+            self.registers[s.LIFO_STATUS] = 1 << 29 | min(max(counter, 1), (1 << 27) - 1)
 
     # ---- data endpoint ------------------------------------------------------------------
     def _limit(self) -> int:

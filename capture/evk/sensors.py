@@ -235,6 +235,27 @@ class Imx636:
         self.run((("RMW", s.ADC_CONTROL, 0, 1 << 1),))
         return s.TEMPERATURE_C_PER_STEP * (value & 0x3FF) + s.TEMPERATURE_OFFSET_C
 
+    def illuminance_lux(self) -> float:
+        """Light level on the sensor, lux, from its LIFO on-time counter, with the HAL's register
+        traffic (``TzImx636::get_illumination``: ``lifo_status`` read up to ten times until valid).
+
+        Raises
+        ------
+        EvkError
+            The counter never became valid, or reads 0 (no level to give).
+        """
+        s = seq_imx636
+        for _ in range(10):
+            (status,) = self.run((("R", s.LIFO_STATUS),))
+            if status >> 29 & 1:
+                break
+        else:
+            raise EvkError(f"{self.name} light counter did not report a value (register 0x{s.LIFO_STATUS:04X})")
+        counter = status & ((1 << 27) - 1)
+        if counter == 0:
+            raise EvkError(f"{self.name} light counter reads 0: no light level")
+        return s.illuminance_lux(counter)
+
     # ---- ERC ----------------------------------------------------------------------------
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
         """Cap the sensor's output at ``max_event_rate_ev_s`` (events/s); ``None`` disables."""
@@ -267,6 +288,7 @@ class Gen41(Imx636):
     compatible = ("psee,ccam5_gen41",)
     seq = seq_gen41
     temperature_c = None  # the HAL reads no temperature from a Gen4.1 behind the CX3 (EVK3 HD)
+    illuminance_lux = None  # nor a light level
 
     @classmethod
     def probe(cls, link: TzLink, device: int) -> bool:

@@ -14,6 +14,9 @@ Run order: open = STOP, DESTROY, INIT, then POST_INIT_*; start = START; stop = S
 close = DESTROY.
 """
 
+import math
+
+
 INIT = (
     ("W", 0x0000001C, 0x00000001),  # 1 unnamed (not in public maps)
     ("D", 1000000),  # 2
@@ -248,6 +251,14 @@ ADC_CONTROL = 0x004C  # adc_en [0], adc_clk_en [1], adc_start [2]
 ADC_STATUS = 0x0050  # adc_dac_dyn [9:0], adc_done_dyn [11]
 ADC_MISC_CTRL = 0x0054  # adc_buf_cal_en [1], adc_temp [12]
 TEMPERATURE_C_PER_STEP, TEMPERATURE_OFFSET_C = 0.190, -56.0  # the HAL's get_temperature: 0.190 x dac - 56
+LIFO_CONTROL = 0x000C  # lifo_en [0], lifo_out_en [1], lifo_cnt_en [2]
+LIFO_STATUS = 0x0010  # lifo_ton [28:0] (the HAL keeps [26:0]), lifo_ton_valid [29]
+
+
+def illuminance_lux(counter: int) -> float:
+    """The HAL's light level from the LIFO's on-time counter (``TzImx636::get_illumination``):
+    ``10 ** (3.5 - log10(0.37 * counter / 100))`` lux."""
+    return 10.0 ** (3.5 - math.log10(0.37 * counter / 100.0))
 
 CHIP_ID_ADDRESS = 0x0014
 CHIP_ID = 0xA0401806

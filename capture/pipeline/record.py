@@ -214,7 +214,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                             "width": info.width, "height": info.height,
                             "biases": camera.get_biases(), "erc_ev_s": settings.erc_ev_s,
                             "anti_flicker_hz": settings.anti_flicker_hz,
-                            "temperature_c": _temperature_c(camera)},
+                            "temperature_c": _reading(camera.temperature_c, 1),
+                            "illuminance_lux": _reading(camera.illuminance_lux, 0)},
                  "raw_file": RAW_NAME, **settings.attrs}
         writer = create_session(out, width=info.width, height=info.height, attrs=attrs,
                                 flush_interval_s=settings.flush_interval_s)
@@ -290,7 +291,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             store.close()
         store_error = _finalise(writer, live, review, stats, reason, lock, messages,
                                 raw_write_error=str(write_error[0]) if raw_error else None,
-                                temperature_c=_temperature_c(camera) if device_error is None else None)
+                                temperature_c=_reading(camera.temperature_c, 1) if device_error is None else None)
         camera.close()
         if gopro_media is not None:
             _gopro_finish(settings, gopro_media, out, messages)
@@ -305,11 +306,11 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                         error=device_error or store_error)
 
 
-def _temperature_c(camera) -> float | None:
-    """The sensor's die temperature, °C (rounded to 0.1), or None where it reports none or the
-    reading fails (the recording does not depend on it)."""
+def _reading(read, digits: int) -> float | None:
+    """A sensor reading (temperature, °C; light level, lux) rounded to ``digits``, or None where
+    the sensor reports none or the reading fails (the recording does not depend on it)."""
     try:
-        return round(float(camera.temperature_c()), 1)
+        return round(float(read()), digits)
     except (EvkError, OSError, ValueError):
         return None
 
