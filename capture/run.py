@@ -55,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--bias", type=name_int, action="append", default=[], metavar="NAME=VALUE",
                     help="sensor bias (IMX636: offset from the factory value); repeat for several")
     ap.add_argument("--roi", type=box, metavar="X,Y,WIDTH,HEIGHT", help="region of interest in pixels")
+    ap.add_argument("--crop", type=box, metavar="X,Y,WIDTH,HEIGHT",
+                    help="drop events outside this window in the sensor's digital readout (IMX636, Gen4.1), pixels")
     ap.add_argument("--erc", type=float, metavar="EV_S", help="event-rate cap, events per second")
     ap.add_argument("--anti-flicker", type=flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
                     help="event camera: drop events of lights flickering in this band (mains frequency, or Hz)")
@@ -132,7 +134,7 @@ def _devices(args, out: Path):
         return
     ball = ball_attr(args)
     settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=biases_of(args.bias_file, args.bias),
-                              roi=args.roi, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
+                              roi=args.roi, crop=args.crop, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet,
                               attrs={"ball": ball} if ball else {})
     if args.fake:

@@ -383,3 +383,29 @@ def test_imx636_light_level_register_traffic_is_the_hals():
         cam.illuminance_lux()
     assert [e[:1] + e[2:3] for e in fake.register_log()[n + 1:]] == [("R", 0x0010)] * 10
     cam.close()
+
+
+@pytest.mark.parametrize("sensor", ["imx636", "gen41"])
+def test_digital_crop_register_traffic_is_the_hals(sensor):
+    # Gen41DigitalCrop (OpenEB): set_window_region writes start_x, start_y, end_x, end_y (the last
+    # pixel kept) and reset_orig (0: the sensor's coordinates), each a read-modify-write; then
+    # enable writes dig_crop_enable = 5. Off: dig_crop_enable = 0.
+    fake, cam = opened(sensor=sensor)
+    n = len(fake.register_log())
+    cam.set_crop(320, 180, 640, 360)
+    log = [e[:1] + e[2:3] for e in fake.register_log()[n:]]
+    assert log == [("R", 0x9010), ("W", 0x9010)] * 2 + [("R", 0x9014), ("W", 0x9014)] * 2 + [("R", 0x900C), ("W", 0x900C)] * 2
+    assert fake.registers[0x9010] == 320 | 180 << 16 and fake.registers[0x9014] == 959 | 539 << 16
+    assert fake.registers[0x900C] & 0x17 == 5
+    cam.set_crop()
+    assert fake.registers[0x900C] & 0x7 == 0
+    with pytest.raises(ValueError):
+        cam.set_crop(1200, 0, 200, 100)  # past the sensor's edge
+    cam.close()
+
+
+def test_gen31_has_no_digital_crop():
+    _, cam = opened(sensor="gen31")
+    with pytest.raises(evk.EvkError, match="no digital crop"):
+        cam.set_crop(0, 0, 100, 100)
+    cam.close()

@@ -21,10 +21,11 @@ def test_fake_recording_keeps_every_event_and_byte(shared_raw_dir, tmp_path):
     src = shared_raw_dir / TRIGGER_FILE
     out = tmp_path / "session"
     rc = run_main(["--fake", str(src), "--speed", "max", "--out", str(out), "--viewer", "none",
-                   "--no-analysis", "--quiet", "--ball", "tennis"])
+                   "--no-analysis", "--quiet", "--ball", "tennis", "--crop", "0,0,1280,720"])
     assert rc == 0
     ref = raw.read(src)
     s = open_session(out)
+    assert s.attrs["sensor"]["crop"] == [0, 0, 1280, 720]  # the settings the sensor recorded with
     assert s.attrs["closed"] and s.attrs["recording"]["stop_reason"] == "end_of_stream"
     assert s.attrs["ball"] == {"type": "tennis", "diameter_m": 0.067}  # for the report's distances and speeds
     assert np.array_equal(s.events(), ref.events)
@@ -55,6 +56,15 @@ def test_bad_arguments_give_one_line_errors(tmp_path, capsys):
     assert run_main(["--fake", str(tmp_path / "missing.raw"), "--out", str(tmp_path / "busy"),
                      "--viewer", "none"]) == 1
     assert (tmp_path / "busy" / "x").read_text() == "keep me"
+
+
+def test_a_crop_past_the_sensor_is_one_line_and_records_nothing(shared_raw_dir, tmp_path, capsys):
+    out = tmp_path / "s"
+    assert run_main(["--fake", str(shared_raw_dir / TRIGGER_FILE), "--speed", "max", "--out", str(out),
+                     "--viewer", "none", "--no-analysis", "--quiet", "--crop", "1200,0,200,100"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "1280" in err[0]
+    assert not (out / "events.raw").exists()
 
 
 def _recorder_with_first_commit(src, out, **popen_kw) -> subprocess.Popen:

@@ -44,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--trigger", action="store_true", default=None, help="enable the external trigger input")
     rec.add_argument("--roi", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
                      help="keep only this window, pixels")
+    rec.add_argument("--crop", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
+                     help="drop events outside this window in the sensor's digital readout, pixels")
     rec.add_argument("--fake", metavar="FILE",
                      help="stream this RAW file through the emulated EVK instead of hardware")
     rec.add_argument("--speed", choices=["recorded", "max"], default="recorded",
@@ -82,7 +84,7 @@ def _record(args) -> None:
     with open(args.serial, backend=backend) as cam:
         print(cam)
         cam.configure(biases=biases_of(args.bias_file, args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
-                      anti_flicker_hz=args.anti_flicker)
+                      anti_flicker_hz=args.anti_flicker, crop=args.crop)
         stop = threading.Event()
         previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.set())
         try:

@@ -375,9 +375,10 @@ class Camera:
     def configure(self, *, biases: dict[str, int] | None = None,
                   roi: tuple[int, int, int, int] | None = None,
                   erc_ev_s: float | None = None, trigger_in: bool | None = None,
-                  anti_flicker_hz: tuple[int, int] | None = None) -> None:
-        """Apply the recording settings that are given, in this order: biases, ROI, event
-        rate cap, anti-flicker, trigger input. A setting left ``None`` is not touched.
+                  anti_flicker_hz: tuple[int, int] | None = None,
+                  crop: tuple[int, int, int, int] | None = None) -> None:
+        """Apply the recording settings that are given, in this order: biases, ROI, digital
+        crop, event rate cap, anti-flicker, trigger input. A setting left ``None`` is not touched.
 
         Parameters
         ----------
@@ -386,6 +387,8 @@ class Camera:
             counts; Gen4.1: absolute 0-255; Gen3.1: mV). Empty or ``None``: not touched.
         roi : (int, int, int, int), optional
             ``(x, y, width, height)`` in pixels for :meth:`set_roi`.
+        crop : (int, int, int, int), optional
+            ``(x, y, width, height)`` in pixels for :meth:`set_crop`.
         erc_ev_s : float, optional
             Event rate cap for :meth:`set_erc`, events/s.
         anti_flicker_hz : (int, int), optional
@@ -402,6 +405,8 @@ class Camera:
             self.set_biases(**biases)
         if roi is not None:
             self.set_roi(*roi)
+        if crop is not None:
+            self.set_crop(*crop)
         if erc_ev_s is not None:
             self.set_erc(erc_ev_s)
         if anti_flicker_hz is not None:
@@ -424,6 +429,21 @@ class Camera:
                 width: int | None = None, height: int | None = None) -> None:
         """Keep only pixels in ``[x, x+width) x [y, y+height)``; no arguments: full frame."""
         self.sensor.set_roi(x, y, width, height)
+
+    def set_crop(self, x: int | None = None, y: int | None = None,
+                 width: int | None = None, height: int | None = None) -> None:
+        """Drop the events outside ``[x, x+width) x [y, y+height)`` in the sensor's digital
+        readout (IMX636, Gen4.1; the pixels still fire, unlike :meth:`set_roi`, and event
+        coordinates stay the sensor's); no arguments: off.
+
+        Raises
+        ------
+        EvkError
+            On a sensor without a digital crop (Gen3.1).
+        """
+        if not hasattr(self.sensor, "set_crop"):
+            raise EvkError(f"the {self.sensor.name} has no digital crop")
+        self.sensor.set_crop(x, y, width, height)
 
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
         """Cap the sensor's event rate (events/s) with its event rate controller; ``None``

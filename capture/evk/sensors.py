@@ -165,6 +165,25 @@ class Imx636:
         self.run(ops)
         self._roi_enable(True)
 
+    def set_crop(self, x=None, y=None, width=None, height=None) -> None:
+        """Drop, in the digital readout, the events outside ``[x, x+width) x [y, y+height)``
+        (coordinates stay the sensor's); no arguments switches the crop off. The HAL's register
+        traffic (``Gen41DigitalCrop``: ``set_window_region`` without resetting the origin, then
+        ``enable``): each field a read-modify-write.
+        """
+        s = seq_imx636
+        if x is None and y is None and width is None and height is None:
+            self.run((("RMW", s.DIG_CTRL, 0, 0x7),))
+            return
+        _check_window(x, y, width, height, self.width, self.height, self.name)
+        x1, y1 = x + width - 1, y + height - 1  # the region's last pixel
+        self.run((
+            ("RMW", s.DIG_START_POS, x, 0x7FF), ("RMW", s.DIG_START_POS, y << 16, 0x3FF << 16),
+            ("RMW", s.DIG_END_POS, x1, 0x7FF), ("RMW", s.DIG_END_POS, y1 << 16, 0x3FF << 16),
+            ("RMW", s.DIG_CTRL, 0, 1 << 4),  # keep the sensor's coordinates
+            ("RMW", s.DIG_CTRL, 5, 0x7),
+        ))
+
     def _roi_enable(self, state: bool) -> None:
         bits = (1 << 1) | (1 << 5) | (1 << 6) | (1 << 10)
         value = (int(state) << 1) | (1 << 5) | (1 << 6) | (1 << 10)

@@ -251,6 +251,9 @@ ADC_CONTROL = 0x004C  # adc_en [0], adc_clk_en [1], adc_start [2]
 ADC_STATUS = 0x0050  # adc_dac_dyn [9:0], adc_done_dyn [11]
 ADC_MISC_CTRL = 0x0054  # adc_buf_cal_en [1], adc_temp [12]
 TEMPERATURE_C_PER_STEP, TEMPERATURE_OFFSET_C = 0.190, -56.0  # the HAL's get_temperature: 0.190 x dac - 56
+DIG_CTRL = 0x900C  # ro/dig_ctrl: dig_crop_enable [2:0] (5 on, 0 off), dig_crop_reset_orig [4]
+DIG_START_POS = 0x9010  # dig_crop_start_x [10:0], dig_crop_start_y [25:16]
+DIG_END_POS = 0x9014  # dig_crop_end_x [10:0], dig_crop_end_y [25:16] (the last pixel kept)
 LIFO_CONTROL = 0x000C  # lifo_en [0], lifo_out_en [1], lifo_cnt_en [2]
 LIFO_STATUS = 0x0010  # lifo_ton [28:0] (the HAL keeps [26:0]), lifo_ton_valid [29]
 

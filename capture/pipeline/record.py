@@ -50,7 +50,9 @@ class RecordSettings:
     biases : dict
         Named sensor biases.
     roi : tuple or None
-        ``(x, y, width, height)`` px.
+        ``(x, y, width, height)`` px (pixels outside it are off).
+    crop : tuple or None
+        ``(x, y, width, height)`` px: the sensor's digital crop (events outside it dropped).
     anti_flicker_hz : (int, int) or None
         The event camera's anti-flicker band, Hz (stored in the session's sensor attributes).
     erc_ev_s : float or None
@@ -83,6 +85,7 @@ class RecordSettings:
     backend: object | None = None
     biases: dict = field(default_factory=dict)
     roi: tuple | None = None
+    crop: tuple | None = None
     erc_ev_s: float | None = None
     anti_flicker_hz: tuple[int, int] | None = None
     trigger_in: bool = True
@@ -207,13 +210,13 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     lock = threading.Lock()  # one writer: the store thread appends, the status thread flushes
     try:
         info = camera.info
-        camera.configure(biases=settings.biases, roi=settings.roi, erc_ev_s=settings.erc_ev_s or None,
+        camera.configure(biases=settings.biases, roi=settings.roi, crop=settings.crop, erc_ev_s=settings.erc_ev_s or None,
                          trigger_in=settings.trigger_in or None, anti_flicker_hz=settings.anti_flicker_hz)
         attrs = {"sensor": {"board": info.board, "sensor": info.sensor, "serial": info.serial,
                             "format": info.format, "firmware": info.firmware,
                             "width": info.width, "height": info.height,
                             "biases": camera.get_biases(), "erc_ev_s": settings.erc_ev_s,
-                            "anti_flicker_hz": settings.anti_flicker_hz,
+                            "anti_flicker_hz": settings.anti_flicker_hz, "roi": settings.roi, "crop": settings.crop,
                             "temperature_c": _reading(camera.temperature_c, 1),
                             "illuminance_lux": _reading(camera.illuminance_lux, 0)},
                  "raw_file": RAW_NAME, **settings.attrs}
