@@ -140,6 +140,13 @@ def fit_linear(t_frame_s, t_event_us, sigma_us=None, *, method: str = "manual") 
 
 
 # --------------------------------------------------------------------------- (a) sync box
+def _grey(item) -> np.ndarray:
+    """A frame as a grey ``(H, W)`` array: from a gray or BGR image, or an ``(index, t_s, image)``
+    tuple of :meth:`capture.gopro.Video.frames`."""
+    img = np.asarray(item[2] if isinstance(item, tuple) else item)
+    return img.mean(axis=2) if img.ndim == 3 else img
+
+
 def led_brightness(frames: Iterable, roi=None, *, grid: int = 32) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Mean brightness of the LED region in every frame (one pass, bounded memory).
 
@@ -166,10 +173,7 @@ def led_brightness(frames: Iterable, roi=None, *, grid: int = 32) -> tuple[np.nd
     vals, blocks = [], []
     shape = None
     for item in frames:
-        img = item[2] if isinstance(item, tuple) else item
-        img = np.asarray(img)
-        if img.ndim == 3:
-            img = img.mean(axis=2)
+        img = _grey(item)
         if shape is None:
             shape = img.shape
         if roi is not None:
@@ -218,9 +222,7 @@ def refine_led_roi(frames: Iterable, roi) -> tuple[np.ndarray, tuple[int, int, i
     bw, bh = x1 - x0, y1 - y0
     crops, shape = [], None
     for item in frames:
-        img = np.asarray(item[2] if isinstance(item, tuple) else item)
-        if img.ndim == 3:
-            img = img.mean(axis=2)
+        img = _grey(item)
         shape = shape or img.shape
         crops.append(img[max(0, y0 - bh):y1 + bh, max(0, x0 - bw):x1 + bw].astype(np.float32))
     if not crops:
@@ -570,8 +572,7 @@ def _fit_led_frames(brightness, t_frame_s, trig_t_us, trig_p, start, exposure_s,
         x_scale = [scale_e * 1e6 / 10, 10.0, 0.1, 0.1] + ([scale_e * 1e6 / 10] if fit_exposure else [])
         lower = np.full(len(x0), -np.inf)
         upper = np.full(len(x0), np.inf)
-        lower[1], upper[1] = -MAX_DRIFT_PPM, MAX_DRIFT_PPM
-        x0[1] = np.clip(x0[1], -MAX_DRIFT_PPM + 1e-6, MAX_DRIFT_PPM - 1e-6)
+        lower[1], upper[1] = -MAX_DRIFT_PPM, MAX_DRIFT_PPM  # x0's drift is already within them
         sol = least_squares(residual, x0, loss="soft_l1", f_scale=3 * sigma_b, x_scale=x_scale, bounds=(lower, upper))
         x, r, jac = sol.x, sol.fun, sol.jac
     else:  # every edge fell between two exposures: only the gaps bound them (the profile below)
@@ -747,11 +748,7 @@ def frame_difference_energy(frames: Iterable) -> np.ndarray:
     """
     out, prev = [], None
     for item in frames:
-        img = item[2] if isinstance(item, tuple) else item
-        img = np.asarray(img)
-        if img.ndim == 3:
-            img = img.mean(axis=2)
-        img = img.astype(np.float32)
+        img = _grey(item).astype(np.float32)
         if prev is not None:
             out.append(float(np.mean(np.abs(img - prev))))
         prev = img
@@ -769,9 +766,16 @@ def _corr(a, b):
     return float(np.sum(a * b) / d) if d > 0 else 0.0
 
 
+def _corr_at(ev, lo_s, hi_s, energy, offsets_us) -> np.ndarray:
+    """Correlation of the event counts between each frame pair's exposure centres, moved by each
+    offset (µs), with the frame-difference ``energy``."""
+    return np.array([_corr(_interval_counts(ev, lo_s * 1e6 + o, hi_s * 1e6 + o).astype(float), energy)
+                     for o in offsets_us])
+
+
 def _fine_offset(ev, lo_s, hi_s, energy, center_us, half_range_us, step_us):
     offs = center_us + np.arange(-half_range_us, half_range_us + step_us / 2, step_us)
-    sc = np.array([_corr(_interval_counts(ev, lo_s * 1e6 + o, hi_s * 1e6 + o).astype(float), energy) for o in offs])
+    sc = _corr_at(ev, lo_s, hi_s, energy, offs)
     i = int(np.argmax(sc))
     o = offs[i]
     if 0 < i < len(offs) - 1:
@@ -877,7 +881,7 @@ def _profile_sigma_us(ev, lo_s, hi_s, energy, best_us, r_best, period_us):
     ``(1 - r²) / sqrt(n - 2)``. Checked on simulated clips (``bench/sync_bench.py --activity``):
     the errors were within 1.1 of it on the tuning seeds."""
     offs = best_us + np.arange(-2 * period_us, 2 * period_us + 1e-9, period_us / 50)
-    sc = np.array([_corr(_interval_counts(ev, lo_s * 1e6 + o, hi_s * 1e6 + o).astype(float), energy) for o in offs])
+    sc = _corr_at(ev, lo_s, hi_s, energy, offs)
     n = len(energy)
     close = offs[sc >= r_best - (1 - r_best ** 2) / np.sqrt(max(n - 2, 1))]
     return 0.25 * float(close.max() - close.min()) if len(close) else 0.0
