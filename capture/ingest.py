@@ -5,7 +5,8 @@
   clock (fitted by :func:`fit_time_map`: sync box, else event activity against frame motion).
 - :func:`session_from_raw`: both, for a bare RAW file and its video.
 - :func:`recover_session`: complete the store of a recording cut short (killed, crashed) from
-  the RAW file the recorder wrote beside it, which holds every byte received.
+  the RAW file the recorder wrote beside it, which holds every byte received
+  (:func:`complete_cut_short`: the same before an analysis, when needed).
 
 The video file stays an MP4 (copied into ``SESSION/gopro/``); the store keeps
 its per-frame times already mapped onto the event camera's clock
@@ -176,11 +177,25 @@ def recover_session(session_dir, *, progress: bool = True, chunk_bytes: int = DE
         "recovered_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "recovered_events": n_added, "recovered_triggers": added["triggers"],
         "payload_bytes": reader.size_bytes - reader.header_size, "raw_damage": damage})
-    done = open_session(path)
     t_span = (added["t_to"] - added["t_from"]) * 1e-6 if added["t_from"] is not None else 0.0
     return {"session": str(path), "events_added": n_added, "triggers_added": added["triggers"],
-            "seconds_added": round(t_span, 6), "events": done.n_events, "triggers": len(done.triggers()),
+            "seconds_added": round(t_span, 6), "events": n + n_added, "triggers": stored_triggers + added["triggers"],
             "damage": damage}
+
+
+def complete_cut_short(session_dir, *, progress: bool = True) -> str | None:
+    """Before analysing a session: complete it with :func:`recover_session` if it is a recording cut
+    short. Returns one line on what was done, or why it could not be (its stored part is then
+    analysed), or None for a session that was not cut short."""
+    if not open_session(session_dir).cut_short:
+        return None
+    try:
+        got = recover_session(session_dir, progress=progress)
+    except (SessionError, RawFormatError, OSError) as exc:  # the stored part is still worth analysing
+        return (f"the recording was cut short and its store could not be completed ({' '.join(str(exc).split())}); "
+                "analysing the stored part")
+    return (f"the recording was cut short (killed or crashed); its store was completed from its RAW file: "
+            f"{got['events_added']} events, {got['seconds_added']:.3f} s, {got['triggers_added']} triggers added")
 
 
 def _last_event(session) -> tuple[np.ndarray, int]:

@@ -3,7 +3,7 @@
 Runs detection and spin again over a stored session (:func:`capture.pipeline.replay.replay`),
 or first makes a session of a bare RAW file and its video (:func:`capture.ingest.session_from_raw`).
 A recording cut short (killed, crashed) is first completed from its RAW file
-(:func:`capture.ingest.recover_session`).
+(:func:`capture.ingest.complete_cut_short`).
 """
 
 from __future__ import annotations
@@ -13,11 +13,10 @@ import sys
 from pathlib import Path
 
 from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_command
-from capture.ingest import recover_session, session_from_raw
+from capture.ingest import complete_cut_short, session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
 from capture.results import format_flight_table, session_results
-from capture.raw import RawFormatError
-from capture.session import SessionError, open_session, update_session
+from capture.session import open_session, update_session
 
 PROG = "python -m capture.replay"
 
@@ -76,15 +75,9 @@ def _run(args) -> None:
             print(note)
     else:
         session_path = src
-        if open_session(session_path).cut_short:
-            try:
-                got = recover_session(session_path, progress=progress)
-                print(f"note: {session_path}: the recording was cut short (killed or crashed); its store was "
-                      f"completed from its RAW file: {got['events_added']} events, {got['seconds_added']:.3f} s, "
-                      f"{got['triggers_added']} triggers added", file=sys.stderr)
-            except (SessionError, RawFormatError, OSError) as exc:  # the stored part is still worth analysing
-                print(f"note: {session_path}: the recording was cut short and its store could not be completed "
-                      f"({' '.join(str(exc).split())}); analysing the stored part", file=sys.stderr)
+        completed = complete_cut_short(session_path, progress=progress)
+        if completed:
+            print(f"note: {session_path}: {completed}", file=sys.stderr)
         if ball:
             with update_session(session_path) as writer:
                 writer.set_attrs(ball=ball)

@@ -16,7 +16,6 @@ close = DESTROY.
 
 import math
 
-
 INIT = (
     ("W", 0x0000001C, 0x00000001),  # 1 unnamed (not in public maps)
     ("D", 1000000),  # 2
@@ -262,6 +261,7 @@ def illuminance_lux(counter: int) -> float:
     """The HAL's light level from the LIFO's on-time counter (``TzImx636::get_illumination``):
     ``10 ** (3.5 - log10(0.37 * counter / 100))`` lux."""
     return 10.0 ** (3.5 - math.log10(0.37 * counter / 100.0))
+
 
 CHIP_ID_ADDRESS = 0x0014
 CHIP_ID = 0xA0401806

@@ -20,7 +20,6 @@ session whose task fails (a damaged store) is reported with one line and the oth
 
 from __future__ import annotations
 
-import contextlib
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -35,9 +34,8 @@ from calib.store import event_camera
 from capture.pipeline.replay import (ReplayOptions, analysed_with, one_thread_per_worker, spin_flight, store_results,
                                      track_session)
 from capture.results import session_results
-from capture.ingest import recover_session
-from capture.raw import RawFormatError
-from capture.session import Session, SessionError, open_session
+from capture.ingest import complete_cut_short
+from capture.session import Session, open_session
 from detect.track import window_starts_us
 
 try:
@@ -49,14 +47,10 @@ except ImportError:  # the optional extra is not installed: only the command nee
 def track_unit(session_path: str, options: ReplayOptions, force: bool) -> Track | None:
     """The session's whole ball track, or None when it is already analysed with ``options`` by this
     software (and not ``force``). A recording cut short is first completed from its RAW file
-    (:func:`capture.ingest.recover_session`; when it cannot be, its stored part is analysed and
+    (:func:`capture.ingest.complete_cut_short`; when it cannot be, its stored part is analysed and
     its damage note says so). Raises :class:`capture.session.SessionError` on a damaged store."""
-    session = open_session(session_path)
-    if session.cut_short:
-        with contextlib.suppress(SessionError, RawFormatError, OSError):
-            recover_session(session_path, progress=False)
-        session = open_session(session_path)
-    if not force and analysed_with(session, options):
+    complete_cut_short(session_path, progress=False)
+    if not force and analysed_with(open_session(session_path), options):
         return None
     return track_session(session_path, options, progress=False)
 
