@@ -297,8 +297,8 @@ def attach_video(session_dir, mp4_path, *, exposure_s: float | None = None, led_
             per_frame, source = recorded, "gpmf"
             notes.append(f"exposure {float(np.median(per_frame)) * 1e3:.3f} ms from the camera's metadata"
                          + (f" (varies {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; each frame's is used)" if hi > 1.05 * lo else ""))
-        elif hi > 1.05 * lo:
-            notes.append(f"the camera's metadata says the exposure varied {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; the "
+        elif hi > 1.05 * lo or not 0.95 * lo <= exposure_s <= 1.05 * hi:  # it varied, or the typed one is not it
+            notes.append(f"the camera's metadata says the exposure was {lo * 1e3:.3f}-{hi * 1e3:.3f} ms; the "
                          f"typed {exposure_s * 1e3:.3f} ms is used for every frame (leave --exposure out to use each frame's)")
     skipped = sum(int(np.count_nonzero(m.frame_skips)) for m in metas if m is not None)
     if skipped:

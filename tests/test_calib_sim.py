@@ -100,7 +100,7 @@ def test_auto_exposure_read_from_gpmf_times_every_frame_within_50_us(tmp_path):
     assert np.abs(median_only - truth).max() > 100
     # an exposure typed although the camera says it varied: used, and said so
     typed = attach_video(session, paths["video"], exposure_s=float(np.median(exposure)))
-    assert "exposure varied" in typed and "used for every frame" in typed
+    assert "the camera's metadata says the exposure was" in typed and "used for every frame" in typed
 
 
 def test_the_frame_fit_keeps_a_clock_drift_a_clock_can_have(tmp_path):
@@ -126,3 +126,18 @@ def test_the_frame_fit_keeps_a_clock_drift_a_clock_can_have(tmp_path):
     err = np.abs(frame_times_us(v.t_s, tmap, exposure_s=exposure) - rec.truth["frames"]["t_us"]).max()
     assert abs(tmap.drift_ppm) <= MAX_DRIFT_PPM and abs(tmap.drift_ppm - 40.0) < 100
     assert err <= 50 and err <= 3 * tmap.sigma_us(v.t_s).max()
+
+
+def test_a_typed_exposure_the_metadata_contradicts_is_said(tmp_path):
+    """A constant exposure of 1/480 s in the clip's GPMF: typing 1/240 s is used, and said; typing
+    the right value is not remarked on."""
+    from capture.ingest import session_from_raw
+    from sim import SyncBox, flight
+
+    rec = flight(width=160, height=120, radius_px=10, duration_s=0.3, fps=FPS, exposure_s=EXPOSURE_S,
+                 sync=SyncBox(period_s=0.05, pulse_s=0.013, phase_s=0.007, led_box_px=LED), seed=3)
+    paths = rec.save(tmp_path / "rec", raw=True, video=True)
+    _, wrong = session_from_raw(paths["raw"], tmp_path / "a", paths["video"], progress=False, exposure_s=1 / 240)
+    assert "the camera's metadata says the exposure was 2.083-2.083 ms; the typed 4.167 ms is used" in wrong
+    _, right = session_from_raw(paths["raw"], tmp_path / "b", paths["video"], progress=False, exposure_s=EXPOSURE_S)
+    assert "metadata says" not in right
