@@ -8,7 +8,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from spin import lens
+from spin import lens, pixel_lag
 from spin.fast import FAST_EVENTS, estimate_fast
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
@@ -53,8 +53,9 @@ class SpinEstimate:
         ``"fast"`` or ``"paper"``.
     axis_sigma_deg, rps_sigma_pct : float
         Uncertainty (1 sigma) of the axis (deg) and of the rate (% of ``rps``), from the
-        spread of the estimates on the two halves of the events (``spin.fast.estimate_fast``);
-        NaN for ``method="paper"``.
+        spread of the estimates on the two halves of the events and, for the rate, the trails the
+        sensor's lag leaves behind the ball's texture (``spin.fast.estimate_fast``,
+        :mod:`spin.pixel_lag`); NaN for ``method="paper"``.
     """
 
     axis: np.ndarray
@@ -375,7 +376,9 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=0.95,
                           max_events=opts.pop("max_events", None), min_events=min_events, sensor_size=sensor_size,
                           dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS), view=view)
-        res = estimate_fast(ev, v_fit, velocity_known=known, **opts)
+        pairs = pixel_lag.bursts(events, center, radius, t0_us=int(events["t"].min()) if t0_us is None else t0_us,
+                                 velocity_px_s=v0, view=view)
+        res = estimate_fast(ev, v_fit, velocity_known=known, bursts=pairs, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
         sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct}
     else:

@@ -125,3 +125,30 @@ def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
     res = fast.estimate_fast(ev, (0.0, 0.0))
     assert len(calls) == 5 and sum(calls[1:]) == len(ev)
     assert res.confidence < 0.5
+
+
+@pytest.mark.parametrize("found_alone", [0, 1])
+def test_quarters_agreeing_only_through_the_whole_are_no_check(monkeypatch, ball, found_alone):
+    # every quarter's own search lands 30 deg off, but the whole's answer refined on each quarter
+    # scores as high there: the quarters then agree only through it (a sparse texture over many
+    # turns); one quarter that finds it on its own restores the trust
+    ev, _ = ball
+    span_s = float(ev.tau_s[0] - ev.tau_s[-1])
+    w_whole = np.array([0.0, 0.0, 13.0 / span_s])  # 13 rad over the window
+    calls = []
+
+    def fake_window(events, velocity_px_s, assess=True, **_):
+        calls.append(len(events))
+        quarter = len(calls) - 1
+        w = w_whole if quarter == 0 or quarter <= found_alone else _rotated(w_whole, 30.0)
+        return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1)
+
+    monkeypatch.setattr(fast, "estimate_window", fake_window)
+    monkeypatch.setattr(fast, "_half_answer", lambda half, own, whole, **_: whole.w_rad_s)
+    res = fast.estimate_fast(ev, (0.0, 0.0))
+    assert len(calls) == 5
+    assert res.axis_sigma_deg == fast.SIGMA_FLOOR_DEG  # the parts all read the whole's answer
+    if found_alone:
+        assert res.confidence >= 0.5
+    else:
+        assert res.confidence <= 0.25
