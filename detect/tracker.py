@@ -34,6 +34,7 @@ from __future__ import annotations
 import bisect
 import heapq
 import itertools
+import math
 
 import numpy as np
 
@@ -56,6 +57,9 @@ _SPARSE_FIT_EVENTS = 1000
 _REJECT_SKIP = 3
 """Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
 
+_MAX_SURROUND_EVENTS = 20_000
+"""Events (evenly thinned) that measure whether a ball is surrounded by others."""
+
 
 MAX_SURROUNDED = 0.5
 """A ball found by telling it apart from what touches it has events around it on at most this share
@@ -75,18 +79,44 @@ radii per second (about 2.5 m/s for any ball): a round thing at rest against a b
 player, a ball held in a hand) is no flight."""
 
 
-def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 12) -> float:
+def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 12,
+                max_events: int = _MAX_SURROUND_EVENTS) -> float:
     """Share of the directions around circle ``fit`` in which the ring just outside it
-    (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the disk."""
-    dx, dy = x - fit.cx, y - fit.cy
-    d = np.hypot(dx, dy)
+    (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the disk.
+
+    Densities are ratios, so more than ``max_events`` events are thinned evenly first."""
+    if len(x) > max_events:
+        step = -(-len(x) // max_events)
+        x, y = x[::step], y[::step]
+    dx = np.subtract(x, fit.cx, dtype=np.float32)
+    dy = np.subtract(y, fit.cy, dtype=np.float32)
+    d2 = dx * dx
+    d2 += dy * dy
     r = fit.r
-    dens_in = np.count_nonzero(d < r) / (np.pi * r * r)
+    dens_in = np.count_nonzero(d2 < np.float32(r * r)) / (np.pi * r * r)
     r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    ring = (d > r0) & (d < r1)
-    sector = ((np.arctan2(dy[ring], dx[ring]) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+    ring = np.flatnonzero((d2 > np.float32(r0 * r0)) & (d2 < np.float32(r1 * r1)))
+    angle = np.arctan2(dy.take(ring), dx.take(ring))
+    sector = ((angle + np.float32(np.pi)) * np.float32(n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
     dens_ring = np.bincount(sector, minlength=n_sectors) / (np.pi * (r1 * r1 - r0 * r0) / n_sectors)
     return float(np.mean(dens_ring >= 0.3 * dens_in))
+
+
+def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: float, width: int,
+            height: int) -> np.ndarray:
+    """Indices of the events (int32 pixel coordinates) with ``x0 < x < x1`` and ``y0 < y < y1``.
+
+    The bounds become whole pixels on the sensor, and each axis one unsigned comparison: a float
+    comparison would first convert every coordinate to float64."""
+    if not all(map(math.isfinite, (x0, x1, y0, y1))):
+        return np.zeros(0, np.intp)
+    lo_x, hi_x = max(math.floor(x0) + 1, 0), min(math.ceil(x1) - 1, width - 1)
+    lo_y, hi_y = max(math.floor(y0) + 1, 0), min(math.ceil(y1) - 1, height - 1)
+    if hi_x < lo_x or hi_y < lo_y:
+        return np.zeros(0, np.intp)
+    inside = (x - np.int32(lo_x)).view(np.uint32) <= np.uint32(hi_x - lo_x)
+    inside &= (y - np.int32(lo_y)).view(np.uint32) <= np.uint32(hi_y - lo_y)
+    return np.flatnonzero(inside)
 
 
 def _velocity(a, b) -> tuple[float, float]:
@@ -453,7 +483,7 @@ class BallTracker:
         around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
         hx = around + abs(vx) * (s1 - start) * 0.5e-6
         hy = around + abs(vy) * (s1 - start) * 0.5e-6
-        box = np.flatnonzero((x > cx - hx) & (x < cx + hx) & (y > cy - hy) & (y < cy + hy))
+        box = _in_box(x, y, cx - hx, cx + hx, cy - hy, cy + hy, self.width, self.height)
         if self._hot is not None:
             box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
         # the window lasts as long as the ball needs to fire track_events at its recent rate, so

@@ -13,6 +13,8 @@ from detect import BallTracker, track_ball
 from detect.event_detector import density_filter, find_candidates, fit_circle
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
+from detect.tracker import _in_box, _surrounded
+from detect.event_detector import CircleFit
 
 W, H = 320, 240
 
@@ -108,6 +110,31 @@ def test_find_candidates_sizes_and_ranks_clusters():
     x0, y0, x1, y1 = boxes[0]
     assert x0 <= 88 and x1 >= 112 and y0 <= 88 and y1 >= 112 and x1 - x0 < 45
     assert find_candidates(x, y, width=W, height=H, r_range=(30, 40)) == []  # too small for that range
+
+
+def test_box_selection_matches_float_comparisons():
+    rng = np.random.default_rng(3)
+    x = rng.integers(0, 640, 50_000).astype(np.int32)
+    y = rng.integers(0, 480, 50_000).astype(np.int32)
+    for x0, x1, y0, y1 in [(100.3, 180.0, 50.0, 90.7), (-30.5, 20.2, 470.1, 900.0), (-1e9, 1e9, -1e9, 1e9),
+                           (300.0, 300.5, 10.0, 20.0), (700.0, 800.0, 10.0, 20.0), (np.nan, 10.0, 0.0, 10.0)]:
+        expect = np.flatnonzero((x > x0) & (x < x1) & (y > y0) & (y < y1))
+        np.testing.assert_array_equal(_in_box(x, y, x0, x1, y0, y1, 640, 480), expect)
+
+
+def test_surrounded_counts_the_ring_sectors_that_hold_events():
+    rng = np.random.default_rng(4)
+    fit = CircleFit(cx=100.0, cy=100.0, r=20.0, score=1.0, sigma_px=0.1, n_events=0)
+    disk = rng.uniform(-1, 1, (2, 400_000)) * 20
+    disk = disk[:, np.hypot(*disk) < 20] + 100.0
+    # events in the ring (26-32 px) on the right half only, as dense as the disk
+    a = rng.uniform(-np.pi / 2, np.pi / 2, 300_000)
+    rho = np.sqrt(rng.uniform(26 ** 2, 32 ** 2, len(a)))
+    ring = np.stack([100 + rho * np.cos(a), 100 + rho * np.sin(a)])
+    x, y = np.concatenate([disk[0], ring[0]]), np.concatenate([disk[1], ring[1]])
+    order = rng.permutation(len(x))
+    assert _surrounded(x[order], y[order], fit) == pytest.approx(0.5, abs=1 / 12)
+    assert _surrounded(disk[0], disk[1], fit) == 0.0
 
 
 def test_hot_pixel_map_flags_lonely_busy_pixels_only():
