@@ -55,7 +55,10 @@ _SPARSE_FIT_EVENTS = 1000
 """Tracking windows with fewer events than this drop isolated events before the fit."""
 
 _REJECT_SKIP = 3
-"""Search slices in which a cluster like one just rejected (not circle-like) is not refitted."""
+"""Search windows in which a cluster like one just rejected (not circle-like) is not refitted; each
+further rejection in a row doubles it, up to ``_REJECT_SKIP_MAX`` (a player walking in view)."""
+
+_REJECT_SKIP_MAX = 12
 
 _MAX_SURROUND_EVENTS = 20_000
 """Events (evenly thinned) that measure whether a ball is surrounded by others."""
@@ -236,7 +239,8 @@ class BallTracker:
         self._misses = 0
         self._outliers = 0
         self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple, bool]] = []
-        self._rejected: list[tuple[tuple[int, int, int, int], int, bool]] = []  # (box, skips, coarse)
+        # (box, windows skipped since its last fit, coarse, rejections in a row)
+        self._rejected: list[tuple[tuple[int, int, int, int], int, bool, int]] = []
         self._final: list[Track] = []  # final rows, in chunks
         self._n_final_taken = 0
         self._flight_final = 0  # updates of the current flight whose rows are final
@@ -542,18 +546,22 @@ class BallTracker:
         margin = 2 * self.cell_px
         rejected = []
         for box, coarse in self._candidates(x, y):
-            # a cluster that was no ball in the last slices (a player...) is refitted only every
-            # few slices: the search then stays cheap while such a cluster is in view
-            skips = max((k for b, k, c in self._rejected if c == coarse and _iou(b, box) > 0.3), default=-1)
+            # a cluster that was no ball in the last windows (a player...) is refitted only every few
+            # windows, fewer the more often it was rejected: the search then stays cheap while such a
+            # cluster is in view
+            prev = max(((k, n) for b, k, c, n in self._rejected if c == coarse and _iou(b, box) > 0.3),
+                       key=lambda e: (e[1], e[0]), default=None)
             edge = 2 * self.cell_px  # a ball coming in over the border is fitted every slice
             at_border = (box[0] <= edge or box[1] <= edge or box[2] >= self.width - edge
                          or box[3] >= self.height - edge)
-            if 0 <= skips < _REJECT_SKIP and not at_border:
-                rejected.append((box, skips + 1, coarse))
+            if prev is not None and prev[0] < min(_REJECT_SKIP << (prev[1] - 1), _REJECT_SKIP_MAX) and not at_border:
+                rejected.append((box, prev[0] + 1, coarse, prev[1]))
                 continue
+            strikes = 1 if prev is None else prev[1] + 1
             x0, y0, x1, y1 = box
-            sel = (x >= x0 - margin) & (x < x1 + margin) & (y >= y0 - margin) & (y < y1 + margin)
-            ts, xs, ys = t[sel], x[sel], y[sel]
+            sel = _in_box(x, y, x0 - margin - 0.5, x1 + margin - 0.5, y0 - margin - 0.5, y1 + margin - 0.5,
+                          self.width, self.height)
+            ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
             # a cluster of the fine map that is no circle may be a ball touching something
@@ -561,7 +569,7 @@ class BallTracker:
             if split:
                 fit, v0, (ts, xs, ys) = self._fit_split(ts, xs, ys, m, v0)
             if fit is None or fit.score < self.min_score:
-                rejected.append((box, 0, coarse))
+                rejected.append((box, 0, coarse, strikes))
                 continue
             if best is not None and fit.score <= best[0].score:
                 continue
@@ -592,7 +600,7 @@ class BallTracker:
             if all(tent[4] for tent in self._tentative) and self._slow(fit):
                 # a round part of something bigger moving with it (a head on a body), not a ball
                 self._tentative = []
-                self._rejected.append((box, 0, coarse))
+                self._rejected.append((box, 0, coarse, 1))
                 return
             self._start_flight()
 

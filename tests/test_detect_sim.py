@@ -192,3 +192,28 @@ def test_track_feeds_spin_windows(spinning_flight):
         d = np.hypot(w.events["x"] - (ex + truth["velocity_px_s"][0] * (w.events["t"] - w.t_start_us) * 1e-6),
                      w.events["y"] - (ey + truth["velocity_px_s"][1] * (w.events["t"] - w.t_start_us) * 1e-6))
         assert np.mean(d <= truth["radius_px"] + 1.5) > 0.99
+
+
+def test_a_player_in_view_is_refitted_less_and_less_often(monkeypatch):
+    # no ball: a walking player and a swinging arm; clusters rejected again and again are refitted at
+    # doubling intervals (up to tracker._REJECT_SKIP_MAX windows), not every few windows
+    import detect.tracker as tracker
+
+    rec = sim.flight(radius_px=20, width=640, height=480, duration_s=0.3, start_px=(-1000.0, 240.0),
+                     velocity_px_s=(0.0, 0.0), gravity_px_s2=0.0, rps=0, distractors=("player", "arm"),
+                     noise_rate_hz=1.0, hot_pixels=10, seed=6)
+    original = BallTracker._fit
+
+    def fits_made(skip_max):
+        fits = []
+
+        def counting(self, t, x, y, m, *args, **kwargs):
+            fits.append(m)
+            return original(self, t, x, y, m, *args, **kwargs)
+
+        monkeypatch.setattr(BallTracker, "_fit", counting)
+        monkeypatch.setattr(tracker, "_REJECT_SKIP_MAX", skip_max)
+        assert len(track_ball(rec.events, width=640, height=480)) == 0
+        return len(fits)
+
+    assert fits_made(tracker._REJECT_SKIP_MAX) < 0.6 * fits_made(tracker._REJECT_SKIP)  # no doubling
