@@ -267,7 +267,7 @@ def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, ce
         return []
     gw, gh = -(-width // cell_px), -(-height // cell_px)
     if cell_px & (cell_px - 1) == 0 and x.dtype == y.dtype == np.int32:  # a power of two: shifts on int32
-        shift = cell_px.bit_length() - 1
+        shift = int(cell_px).bit_length() - 1
         cell = (y >> shift) * gw + (x >> shift)
     else:
         cell = (y.astype(np.int64) // cell_px) * gw + x.astype(np.int64) // cell_px

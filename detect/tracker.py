@@ -111,10 +111,11 @@ def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: f
 
     The bounds become whole pixels on the sensor, and each axis one unsigned comparison: a float
     comparison would first convert every coordinate to float64."""
-    if not all(map(math.isfinite, (x0, x1, y0, y1))):
+    if any(map(math.isnan, (x0, x1, y0, y1))):
         return np.zeros(0, np.intp)
-    lo_x, hi_x = max(math.floor(x0) + 1, 0), min(math.ceil(x1) - 1, width - 1)
-    lo_y, hi_y = max(math.floor(y0) + 1, 0), min(math.ceil(y1) - 1, height - 1)
+    # bounds first held just outside the sensor (they may be infinite)
+    lo_x, hi_x = math.floor(max(x0, -1.0)) + 1, math.ceil(min(x1, float(width))) - 1
+    lo_y, hi_y = math.floor(max(y0, -1.0)) + 1, math.ceil(min(y1, float(height))) - 1
     if hi_x < lo_x or hi_y < lo_y:
         return np.zeros(0, np.intp)
     inside = (x - np.int32(lo_x)).view(np.uint32) <= np.uint32(hi_x - lo_x)

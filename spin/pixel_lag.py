@@ -10,7 +10,7 @@ the benchmark's realistic sensor, ``sim.SensorModel``).  The shading that sets e
 fixed in the image, so every part of the window shares the bias and the cross-check of its halves
 cannot see it.
 
-The trail is measured from the data: consecutive events of one pixel with one polarity (a burst),
+The trail is measured from the data: consecutive events of one pixel, both of one polarity (a burst),
 their time apart times the speed, under the estimated spin, of the ball's surface at that pixel.
 Its median against the distance the surface travels in the window gives the rate's systematic
 uncertainty (:func:`rate_bias_pct`): an ideal sensor gives trails of about 0.1 px, the realistic
@@ -35,7 +35,7 @@ MIN_PAIRS = 20
 
 @dataclass(frozen=True)
 class Bursts:
-    """Pairs of consecutive events of one pixel and one polarity on the ball.
+    """Pairs of consecutive events of one pixel on the ball, both of one polarity.
 
     Attributes
     ----------
@@ -56,6 +56,18 @@ class Bursts:
 
     def __len__(self) -> int:
         return len(self.dt_s)
+
+
+def _mixed(key: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser of ``key`` (uint64): every bit of the result depends on every bit of the key
+    (a plain multiplicative hash's low bits follow the key's low bits, here a pixel's column)."""
+    h = key.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    h ^= h >> np.uint64(30)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(27)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return h
 
 
 def bursts(events, center, radius_px: float, *, t0_us: int, velocity_px_s, view: lens.BallView | None = None,
@@ -100,11 +112,13 @@ def bursts(events, center, radius_px: float, *, t0_us: int, velocity_px_s, view:
     idx = np.flatnonzero(dx * dx + dy * dy <= f32(reach * reach))
     pixel = y[idx].astype(np.int64) * 65536 + x[idx]
     if len(idx) > max_events:  # every k-th pixel, pseudo-randomly (a lattice could follow the texture)
-        keep = (pixel * 2654435761) % (1 << 32) % -(-len(idx) // max_events) == 0
+        keep = _mixed(pixel) % np.uint64(-(-len(idx) // max_events)) == 0
         idx, pixel = idx[keep], pixel[keep]
-    key = pixel * 2 + (events["p"][idx] > 0)
-    order = np.argsort(key, kind="stable")  # stable: each pixel's events stay in time order
-    same = np.flatnonzero(key[order[1:]] == key[order[:-1]])
+    order = np.argsort(pixel, kind="stable")  # stable: each pixel's events stay in time order
+    on = events["p"][idx[order]] > 0
+    # consecutive events of one pixel with one polarity: an event of the other polarity between them
+    # is another edge
+    same = np.flatnonzero((pixel[order[1:]] == pixel[order[:-1]]) & (on[1:] == on[:-1]))
     later, earlier = idx[order[same + 1]], idx[order[same]]
     dt_s = (t_us[later] - t_us[earlier]) * 1e-6
     if view is None:

@@ -117,7 +117,8 @@ def test_box_selection_matches_float_comparisons():
     x = rng.integers(0, 640, 50_000).astype(np.int32)
     y = rng.integers(0, 480, 50_000).astype(np.int32)
     for x0, x1, y0, y1 in [(100.3, 180.0, 50.0, 90.7), (-30.5, 20.2, 470.1, 900.0), (-1e9, 1e9, -1e9, 1e9),
-                           (300.0, 300.5, 10.0, 20.0), (700.0, 800.0, 10.0, 20.0), (np.nan, 10.0, 0.0, 10.0)]:
+                           (300.0, 300.5, 10.0, 20.0), (700.0, 800.0, 10.0, 20.0), (np.nan, 10.0, 0.0, 10.0),
+                           (-np.inf, np.inf, -np.inf, 240.0), (-0.5, 639.5, -1.0, 480.0), (-20.0, -3.0, 0.0, 9.0)]:
         expect = np.flatnonzero((x > x0) & (x < x1) & (y > y0) & (y < y1))
         np.testing.assert_array_equal(_in_box(x, y, x0, x1, y0, y1, 640, 480), expect)
 
