@@ -108,21 +108,29 @@ def test_paper_method_reports_no_uncertainty(ball):
     assert math.isnan(est.axis_sigma_deg) and math.isnan(est.rps_sigma_pct)
 
 
-def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
-    ev, _ = ball
+def _many_turns(monkeypatch, ev, part_answer, half_answer):
+    """:func:`spin.fast.estimate_fast` on ``ev`` with its searches faked: the whole window turns 13 rad
+    about the optical axis, part ``k`` (1, 2, ...) answers ``part_answer(k, w_whole)``, and a straying
+    part defers to ``half_answer``; returns the event counts of the searches and the result."""
     span_s = float(ev.tau_s[0] - ev.tau_s[-1])
-    w_whole = np.array([0.0, 0.0, 13.0 / span_s])  # 13 rad over the window
+    w_whole = np.array([0.0, 0.0, 13.0 / span_s])
     calls = []
 
     def fake_window(events, velocity_px_s, assess=True, **_):
         calls.append(len(events))
-        # the third quarter aliases (twice the speed)
-        w = w_whole * (2.0 if len(calls) == 4 else 1.0)
+        w = w_whole if len(calls) == 1 else part_answer(len(calls) - 1, w_whole)
         return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1)
 
     monkeypatch.setattr(fast, "estimate_window", fake_window)
-    monkeypatch.setattr(fast, "_half_answer", lambda half, own, whole, **_: own.w_rad_s)
-    res = fast.estimate_fast(ev, (0.0, 0.0))
+    monkeypatch.setattr(fast, "_half_answer", half_answer)
+    return calls, fast.estimate_fast(ev, (0.0, 0.0))
+
+
+def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
+    ev, _ = ball
+    # the third quarter aliases (twice the speed)
+    calls, res = _many_turns(monkeypatch, ev, lambda k, w: w * (2.0 if k == 3 else 1.0),
+                             lambda half, own, whole, **_: own.w_rad_s)
     assert len(calls) == 5 and sum(calls[1:]) == len(ev)
     assert res.confidence < 0.5
 
@@ -133,19 +141,8 @@ def test_quarters_agreeing_only_through_the_whole_are_no_check(monkeypatch, ball
     # scores as high there: the quarters then agree only through it (a sparse texture over many
     # turns); one quarter that finds it on its own restores the trust
     ev, _ = ball
-    span_s = float(ev.tau_s[0] - ev.tau_s[-1])
-    w_whole = np.array([0.0, 0.0, 13.0 / span_s])  # 13 rad over the window
-    calls = []
-
-    def fake_window(events, velocity_px_s, assess=True, **_):
-        calls.append(len(events))
-        quarter = len(calls) - 1
-        w = w_whole if quarter == 0 or quarter <= found_alone else _rotated(w_whole, 30.0)
-        return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1)
-
-    monkeypatch.setattr(fast, "estimate_window", fake_window)
-    monkeypatch.setattr(fast, "_half_answer", lambda half, own, whole, **_: whole.w_rad_s)
-    res = fast.estimate_fast(ev, (0.0, 0.0))
+    calls, res = _many_turns(monkeypatch, ev, lambda k, w: w if k <= found_alone else _rotated(w, 30.0),
+                             lambda half, own, whole, **_: whole.w_rad_s)
     assert len(calls) == 5
     assert res.axis_sigma_deg == fast.SIGMA_FLOOR_DEG  # the parts all read the whole's answer
     if found_alone:
