@@ -171,10 +171,12 @@ TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
 SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
     "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
-    "confidence": ("<f4", ()), "axis_sigma_deg": ("<f4", ()), "rps_sigma_pct": ("<f4", ())}
+    "confidence": ("<f4", ()), "axis_sigma_deg": ("<f4", ()), "rps_sigma_pct": ("<f4", ()),
+    "rps_lag_pct": ("<f4", ())}
 """Spin estimates: window µs (end exclusive), unit axis in the camera frame, rad/s, rev/s,
 centre velocity px/s, confidence 0..1, uncertainty (1 sigma) of the axis in degrees and of the
-rate in % (NaN where not measured, e.g. sessions written before these columns existed)."""
+rate in %, and the part of the latter from the sensor's lag in % (a bias the windows of a flight
+share; NaN where not measured, e.g. sessions written before these columns existed)."""
 
 
 def empty_table(columns: Mapping[str, tuple[str, tuple]], n: int = 0) -> dict[str, np.ndarray]:
@@ -204,15 +206,15 @@ def spin_table(spin) -> dict[str, np.ndarray]:
         A mapping of columns, one estimate, or estimates: any object with the attributes
         named in :data:`SPIN_COLUMNS` (e.g. ``spin.SpinEstimate``).
 
-    The uncertainty columns (``axis_sigma_deg``, ``rps_sigma_pct``) may be missing: they are
-    then NaN (not measured).
+    The uncertainty columns (``axis_sigma_deg``, ``rps_sigma_pct``, ``rps_lag_pct``) may be missing:
+    they are then NaN (not measured).
 
     Raises
     ------
     KeyError
         A column other than the uncertainties is missing.
     """
-    optional = ("axis_sigma_deg", "rps_sigma_pct")
+    optional = ("axis_sigma_deg", "rps_sigma_pct", "rps_lag_pct")
     if isinstance(spin, Mapping):
         rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS if k in spin or k not in optional}
     else:

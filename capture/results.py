@@ -88,7 +88,8 @@ def window_table(track: Track, spin: dict) -> dict[str, np.ndarray]:
 
     Columns: ``flight``, ``t_start_s``, ``t_end_s``, ``rps``, ``rpm``, ``axis_x``, ``axis_y``,
     ``axis_z``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``, ``tilt``,
-    ``confidence``, ``trusted``, ``rps_sigma_pct``, ``axis_sigma_deg``, ``image_speed_px_s``.
+    ``confidence``, ``trusted``, ``rps_sigma_pct`` (of which ``rps_lag_pct`` from the sensor's
+    lag), ``axis_sigma_deg``, ``image_speed_px_s``.
     """
     n = len(spin["rps"])
     t0, t1 = np.asarray(spin["t_start_us"], np.int64), np.asarray(spin["t_end_us"], np.int64)
@@ -106,20 +107,23 @@ def window_table(track: Track, spin: dict) -> dict[str, np.ndarray]:
         "efficiency": eff, "tilt": np.array([tilt_clock(a, b) for a, b in comp[:, :2]], dtype=object),
         "confidence": conf, "trusted": conf >= TRUST,
         "rps_sigma_pct": np.asarray(spin["rps_sigma_pct"], np.float64),
+        "rps_lag_pct": np.asarray(spin["rps_lag_pct"], np.float64) if "rps_lag_pct" in spin else np.full(n, np.nan),
         "axis_sigma_deg": np.asarray(spin["axis_sigma_deg"], np.float64),
         "image_speed_px_s": np.hypot(vel[:, 0], vel[:, 1]),
     }
 
 
-def _spread_sigma(values: np.ndarray, window_sigmas: np.ndarray) -> float:
+def _spread_sigma(values: np.ndarray, window_sigmas: np.ndarray, shared: np.ndarray | None = None) -> float:
     """Standard error of the median of ``values``: from their spread, and never below the median
-    of the windows' own sigmas over sqrt(n) (one window: its own sigma)."""
+    of the windows' own sigmas over sqrt(n) (one window: its own sigma), nor below the median of
+    ``shared``, the part of the windows' sigmas that they all share (a bias: no average shrinks it)."""
     n = len(values)
     own = float(np.nanmedian(window_sigmas)) if np.isfinite(window_sigmas).any() else np.nan
+    common = float(np.nanmedian(shared)) if shared is not None and np.isfinite(shared).any() else np.nan
     if n == 1:
         return own
     spread = 1.2533 * float(np.std(values, ddof=1)) / np.sqrt(n)
-    return float(np.nanmax([spread, own / np.sqrt(n)]))
+    return float(np.nanmax([spread, own / np.sqrt(n), common]))
 
 
 RADIUS_SIGMA_PX = 0.6
@@ -234,7 +238,8 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
             rate = float(np.median(rps))
             top, side, gyro = spin_components(mean_axis * rate, (vx, vy))
             row.update(rps=rate, rpm=60.0 * rate,
-                       rpm_sigma=60.0 * _spread_sigma(rps, win["rps_sigma_pct"][ok] / 100.0 * rps),
+                       rpm_sigma=60.0 * _spread_sigma(rps, win["rps_sigma_pct"][ok] / 100.0 * rps,
+                                                      win["rps_lag_pct"][ok] / 100.0 * rps),
                        axis_x=float(mean_axis[0]), axis_y=float(mean_axis[1]), axis_z=float(mean_axis[2]),
                        axis_sigma_deg=_spread_sigma(ang, win["axis_sigma_deg"][ok]) if len(ang) > 1
                        else float(win["axis_sigma_deg"][ok][0]),

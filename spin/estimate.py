@@ -56,6 +56,10 @@ class SpinEstimate:
         spread of the estimates on the two halves of the events and, for the rate, the trails the
         sensor's lag leaves behind the ball's texture (``spin.fast.estimate_fast``,
         :mod:`spin.pixel_lag`); NaN for ``method="paper"``.
+    rps_lag_pct : float
+        The part of ``rps_sigma_pct`` from the sensor's lag (% of ``rps``, 1 sigma, in quadrature
+        with the rest): a bias that the windows of a flight share, so averaging them does not
+        shrink it; NaN for ``method="paper"``.
     """
 
     axis: np.ndarray
@@ -71,6 +75,7 @@ class SpinEstimate:
     method: str
     axis_sigma_deg: float = float("nan")
     rps_sigma_pct: float = float("nan")
+    rps_lag_pct: float = float("nan")
 
 
 def _check_events(events) -> np.ndarray:
@@ -380,7 +385,8 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
                                  velocity_px_s=v0, view=view)
         res = estimate_fast(ev, v_fit, velocity_known=known, bursts=pairs, **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
-        sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct}
+        sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct,
+                  "rps_lag_pct": res.rps_lag_pct}
     else:
         ev, t_sel = prepare(events, center, radius, t0_us=t0_us, velocity_px_s=v0, rim_fraction=1.0,
                           max_events=opts.pop("max_events", PAPER_EVENTS), min_events=min_events,

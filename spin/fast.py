@@ -77,6 +77,7 @@ class FastResult:
     time_fill: float
     axis_sigma_deg: float = float("nan")
     rps_sigma_pct: float = float("nan")
+    rps_lag_pct: float = float("nan")
 
 
 def _deviation(w, w_ref) -> tuple[float, float]:
@@ -206,8 +207,8 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     The uncertainty (1 sigma) is the difference of the first and the last part scaled by ``SIGMA_SCALE_AXIS`` /
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; the rate's also holds,
     in quadrature, ``LAG_SIGMA_SCALE`` times the sensor's lag seen on the ball's ``bursts``
-    (:func:`spin.pixel_lag.rate_bias_pct`: a bias every part shares).  ``axis_sigma_deg`` and
-    ``rps_sigma_pct`` are NaN without a cross-check.  ``opts`` go to :func:`estimate_window`.
+    (:func:`spin.pixel_lag.rate_bias_pct`: a bias every part shares), which ``rps_lag_pct`` gives
+    alone.  ``axis_sigma_deg``, ``rps_sigma_pct`` and ``rps_lag_pct`` are NaN without a cross-check.  ``opts`` go to :func:`estimate_window`.
     """
     whole = estimate_window(ev, velocity_px_s, **opts)
     if not check:
@@ -237,14 +238,15 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
         parts.append(w)
     angle, log_ratio = _deviation(parts[0], parts[-1])
     axis_sigma = max(SIGMA_SCALE_AXIS * angle, SIGMA_FLOOR_DEG)
-    rps_sigma = math.hypot(max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), SIGMA_FLOOR_PCT),
-                           LAG_SIGMA_SCALE * rate_bias_pct(bursts, whole.w_rad_s, float(ev.tau_s[0] - ev.tau_s[-1])))
+    lag = LAG_SIGMA_SCALE * rate_bias_pct(bursts, whole.w_rad_s, float(ev.tau_s[0] - ev.tau_s[-1]))
+    rps_sigma = math.hypot(max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), SIGMA_FLOOR_PCT), lag)
     spread = max(axis_sigma / (0.5 * CHECK_ANGLE_DEG), rps_sigma / (50.0 * (CHECK_RATIO - 1.0)))
     # squared: on the benchmark's tuning seeds the product's windows between 0.5 and 0.7 were right only
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
     confidence = (whole.confidence * float(np.clip((1.6 - worst) / 0.6, 0.0, 1.0))
                   * float(np.clip(1.75 - spread, 0.0, 1.0)) * (0.5 if n_parts == 4 and not found else 1.0)) ** 2
-    return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma)
+    return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma,
+                   rps_lag_pct=lag)
 
 
 def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,

@@ -72,6 +72,14 @@ def test_uncertainty_from_the_spread_and_windows_never_overconfident():
     assert one["rpm_sigma"][0] == pytest.approx(60 * 0.005 * 30.0)  # its own sigma (0.5 %)
     same = flight_table(_track(v), _spin((0, 0, -1), 30.0, v, n=4))
     assert same["rpm_sigma"][0] == pytest.approx(60 * 0.005 * 30.0 / 2)  # no spread: the windows' own / sqrt(n)
+    # windows whose sigma (3 %) is mostly the sensor's lag (2.5 %): a bias they share, which averaging
+    # 100 of them does not shrink
+    lagging = _spin((0, 0, -1), 30.0, v, n=100)
+    lagging["rps_sigma_pct"][:] = 3.0
+    lagging["rps_lag_pct"][:] = 2.5
+    assert flight_table(_track(v), lagging)["rpm_sigma"][0] == pytest.approx(60 * 0.025 * 30.0)
+    lagging["rps_lag_pct"][:] = np.nan  # not measured (an older session): the windows' own / sqrt(n)
+    assert flight_table(_track(v), lagging)["rpm_sigma"][0] == pytest.approx(60 * 0.03 * 30.0 / 10)
 
 
 def test_flights_without_a_trusted_window_are_listed_as_such():

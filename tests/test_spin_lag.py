@@ -77,6 +77,7 @@ def test_a_lagging_sensor_is_flagged_not_trusted(monkeypatch, seed):
     err_pct = 100 * abs(est.rps / truth["rps"] - 1)
     assert err_pct > 5.0
     assert est.confidence < 0.5 and err_pct <= 2 * est.rps_sigma_pct
+    assert 0.5 * est.rps_sigma_pct < est.rps_lag_pct <= est.rps_sigma_pct  # mostly the lag: the part kept apart
     monkeypatch.setattr(fast, "LAG_SIGMA_SCALE", 0.0)  # without the lag term: confidently wrong
     blind = spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
     assert blind.confidence >= 0.5 and blind.rps == pytest.approx(est.rps)
@@ -88,4 +89,5 @@ def test_a_lagging_sensor_is_flagged_not_trusted(monkeypatch, seed):
     assert pixel_lag.trail(pairs, truth["axis"] * truth["omega_rad_s"]) < 0.5
     est = spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
     assert est.confidence >= 0.5 and est.rps_sigma_pct < 1.0
+    assert est.rps_lag_pct < 0.5
     assert 100 * abs(est.rps / truth["rps"] - 1) < 1.0
