@@ -220,10 +220,9 @@ def refine_led_roi(frames: Iterable, roi) -> tuple[np.ndarray, tuple[int, int, i
     """
     x0, y0, x1, y1 = (int(v) for v in roi)
     bw, bh = x1 - x0, y1 - y0
-    crops, shape = [], None
+    crops = []
     for item in frames:
         img = _grey(item)
-        shape = shape or img.shape
         crops.append(img[max(0, y0 - bh):y1 + bh, max(0, x0 - bw):x1 + bw].astype(np.float32))
     if not crops:
         raise SyncError("no frames given")

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import array
 import errno
-import math
 import struct
 import threading
 import time
@@ -589,7 +588,7 @@ class FakeEVK(usb.backend.IBackend):
         count that the HAL's conversion turns into ``illuminance_lux``, flagged valid."""
         s = seq_imx636
         if self.registers.get(s.LIFO_CONTROL, 0) & 0b101 == 0b101 and self.illuminance_lux > 0:
-            counter = int(round(100.0 * 10.0 ** (3.5 - math.log10(self.illuminance_lux)) / 0.37))
+            counter = int(round(s.lifo_counter(self.illuminance_lux)))
             self.registers[s.LIFO_STATUS] = 1 << 29 | min(max(counter, 1), (1 << 27) - 1)
 
     # ---- data endpoint ------------------------------------------------------------------

@@ -263,6 +263,11 @@ def illuminance_lux(counter: int) -> float:
     return 10.0 ** (3.5 - math.log10(0.37 * counter / 100.0))
 
 
+def lifo_counter(lux: float) -> float:
+    """The LIFO on-time count whose :func:`illuminance_lux` is ``lux`` (its inverse)."""
+    return 100.0 * 10.0 ** (3.5 - math.log10(lux)) / 0.37
+
+
 CHIP_ID_ADDRESS = 0x0014
 CHIP_ID = 0xA0401806
 VARIANT_ADDRESS = 0xF128  # bits [1:0]: 0 = IMX636, 2 = IMX646
