@@ -13,7 +13,14 @@ runs as from moving edges, half isolated; about 3 bytes/event):
    queue peak and CPU with the fake releasing data in real time at 1x, 2x, 4x the rate;
 3. raw + live decoding into the session store, fed in real time (``pace="recorded"``): whether
    decoding keeps up, how far behind it gets (queue peak) and when it has caught up;
-4. decoding the RAW file into a session after the recording (catch-up path).
+4. decoding the RAW file into a session after the recording (catch-up path);
+5. loss on a finite device FIFO (``FakeEVK(fifo_bytes=, link_bytes_s=)``): a bursty scene
+   (32.8 ms blocks alternating 1 and 100 Mev/s) over USB3 and a steady stream at the USB2
+   limit, consumed by the live path of ``capture.run`` (decode, session store, live tracking
+   and spin) or by a consumer that holds the GIL 12 ms per batch; bytes the device lost with
+   one synchronous read at a time (the old path), 20 queued requests (the HAL's count) and the
+   default; whether the RAW file is byte-identical to what the device sent; then the highest
+   burst rate the default sustains with no loss (``--loss-only`` runs only this part).
 
 CPU times are process CPU (all threads, the fake's emulation included).
 """
@@ -21,6 +28,8 @@ CPU times are process CPU (all threads, the fake's emulation included).
 from __future__ import annotations
 
 import argparse
+import random
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -29,48 +38,25 @@ import numpy as np
 import usb.core
 
 from capture import evk, raw
-from capture.events import EVENT_DTYPE
 from capture.evk.fake import EP_DATA, FakeEVK
+from capture.evk.fake_data import (
+    EVK_FIFO_BYTES,
+    USB2_LINK_BYTES_S,
+    USB3_LINK_BYTES_S,
+    synthetic_stream,
+)
+from capture.pipeline.live import LiveAnalysis
 from capture.evk.stream import Chunk
 from capture.session import create_session
 
 WIDTH, HEIGHT = 1280, 720
-BLOCK_TH = 8  # one encoded block spans 8 TIME_HIGH periods (32.8 ms)
-
-
-def synth_block(rate_ev_s: float, seed: int = 0, run: int = 8) -> np.ndarray:
-    """Events for one block of BLOCK_TH * 4096 µs at ``rate_ev_s``."""
-    rng = np.random.default_rng(seed)
-    span = BLOCK_TH * 4096
-    n = int(rate_ev_s * span / 1e6)
-    n_runs = n // (2 * run)
-    t_runs = rng.integers(0, span, n_runs)
-    x0 = rng.integers(0, WIDTH - run, n_runs)
-    n_iso = n - n_runs * run
-    ev = np.empty(n, EVENT_DTYPE)
-    ev["t"] = np.concatenate([np.repeat(t_runs, run), rng.integers(0, span, n_iso)])
-    ev["x"] = np.concatenate([(x0[:, None] + np.arange(run)).ravel(), rng.integers(0, WIDTH, n_iso)])
-    ev["y"] = np.concatenate([np.repeat(rng.integers(0, HEIGHT, n_runs), run), rng.integers(0, HEIGHT, n_iso)])
-    ev["p"] = rng.integers(0, 2, n)
-    ev = ev[np.argsort(ev["t"], kind="stable")]
-    ev["t"] += 4096 * 256  # start on a TIME_HIGH boundary
-    return ev
+BLOCK_S = 8 * 4096e-6  # one synthetic block: 8 TIME_HIGH periods (32.8 ms)
 
 
 def synth_stream(path: Path, n_mev: float, rate_ev_s: float) -> int:
-    """Write a RAW file of ~n_mev Mev by tiling one encoded block with its TIME_HIGH words
-    advanced, so that the time base is continuous. Returns the number of events."""
-    block = synth_block(rate_ev_s)
-    words = np.frombuffer(raw.encode(block, width=WIDTH, height=HEIGHT), "<u2")
-    is_th = (words >> 12) == 0x8
-    reps = max(1, int(np.ceil(n_mev * 1e6 / len(block))))
-    with path.open("wb") as f:
-        f.write(raw.header_bytes("EVT3", width=WIDTH, height=HEIGHT))
-        for k in range(reps):
-            w = words.copy()
-            w[is_th] = 0x8000 | ((w[is_th] & 0xFFF) + k * BLOCK_TH) % 4096
-            f.write(w.tobytes())
-    return reps * len(block)
+    """A RAW file of ~n_mev Mev at a steady ``rate_ev_s``; returns the number of events."""
+    reps = max(1, int(np.ceil(n_mev * 1e6 / (rate_ev_s * BLOCK_S))))
+    return synthetic_stream(path, [rate_ev_s] * reps, width=WIDTH, height=HEIGHT)
 
 
 def pyusb_call_overhead_us(n: int = 20000) -> float:
@@ -125,9 +111,13 @@ def main() -> None:
     ap.add_argument("--mev", type=float, default=60.0, help="stream size, millions of events")
     ap.add_argument("--rate-mev-s", type=float, default=100.0, help="stream's event rate (Mev/s)")
     ap.add_argument("--dir", default=None, help="scratch directory (default: a temp dir)")
+    ap.add_argument("--loss-only", action="store_true", help="run only part 5 (finite-FIFO loss)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         tmp = Path(tmp)
+        if args.loss_only:
+            loss(tmp)
+            return
         src = tmp / "stream.raw"
         n_ev = synth_stream(src, args.mev, args.rate_mev_s * 1e6)
         payload = src.read_bytes()
@@ -195,6 +185,70 @@ def main() -> None:
         dt, dc = time.perf_counter() - t, time.process_time() - c
         print(f"  decode + session store: {n / 1e6 / dt:.1f} Mev/s, CPU {dc / (n / 1e6) * 1e3:.1f} ms/Mev "
               f"({n / 1e6:.1f} Mev)")
+
+        loss(tmp)
+
+
+def _gil_holder(ms: float):
+    """on_batch that holds the GIL in one C call of about ``ms`` per batch (``sorted``)."""
+    values = [random.random() for _ in range(20000)]
+    t = time.perf_counter()
+    sorted(values)
+    values = values * max(1, int(ms / 1e3 / (time.perf_counter() - t)))
+    return lambda events, triggers: sorted(values)
+
+
+def _record_fifo(src: Path, out: Path, *, n_transfers: int, link_bytes_s: float, consumer: str,
+                 n_events: int, speed: float = 1.0) -> dict:
+    """One recording through the finite-FIFO fake of a stream of ``n_events``; the device's and
+    the host's loss figures, and process CPU per Mev streamed (the fake's emulation included)."""
+    shutil.rmtree(out.with_suffix(".zarr"), ignore_errors=True)
+    fake = FakeEVK(src, pace="recorded", speed=speed, fifo_bytes=EVK_FIFO_BYTES, link_bytes_s=link_bytes_s)
+    with evk.open(backend=fake) as cam:
+        cam.n_transfers = n_transfers
+        if consumer == "live":
+            live = LiveAnalysis(WIDTH, HEIGHT)
+            with create_session(out.with_suffix(".zarr"), width=WIDTH, height=HEIGHT) as sess:
+                def on_batch(events, triggers):
+                    sess.append_events(events)
+                    live.offer(events)
+                st = evk.record(cam, out, on_batch=on_batch)
+            live.close()
+        else:
+            st = evk.record(cam, out, on_batch=_gil_holder(12.0))
+    payload = out.read_bytes()[st.header_bytes:]
+    return dict(lost=fake.dropped_bytes, sent=fake.bytes_served, jumps=st.time_jumps, host_drops=st.dropped_bytes,
+                identical=payload == fake.served_payload(), cpu_ms_mev=st.cpu_s * 1e3 / (n_events / 1e6),
+                gap_ms=st.max_read_gap_us / 1e3)
+
+
+def loss(tmp: Path) -> None:
+    """Part 5: loss on a finite device FIFO, old path against queued requests."""
+    bursty, usb2 = tmp / "bursty.raw", tmp / "usb2.raw"
+    n_b = synthetic_stream(bursty, [1e6, 100e6] * 4, width=WIDTH, height=HEIGHT)
+    b_bytes = bursty.stat().st_size
+    n_u = synthetic_stream(usb2, [12e6] * 8, width=WIDTH, height=HEIGHT)
+    u_rate = usb2.stat().st_size / (8 * BLOCK_S)
+    print(f"\n5. loss on a finite device FIFO ({EVK_FIFO_BYTES >> 10} KiB): old one-read path vs queued requests")
+    print(f"  bursty scene: {n_b / 1e6:.1f} Mev, {b_bytes / 1e6:.0f} MB, bursts of 100 Mev/s "
+          f"({b_bytes / n_b * 100:.0f} MB/s) over USB3 ({USB3_LINK_BYTES_S / 1e6:.0f} MB/s); steady "
+          f"{n_u / 1e6:.1f} Mev at 12 Mev/s ({u_rate / 1e6:.0f} MB/s) over USB2 ({USB2_LINK_BYTES_S / 1e6:.0f} MB/s)")
+    print(f"  {'stream':8s} {'consumer':10s} {'requests':>8s} {'lost by device':>16s} {'host jumps':>10s} "
+          f"{'file = sent':>11s} {'max gap':>8s} {'CPU ms/Mev':>10s}")
+    for name, src, link, n_ev in (("bursty", bursty, USB3_LINK_BYTES_S, n_b), ("USB2", usb2, USB2_LINK_BYTES_S, n_u)):
+        for consumer in ("live", "gil12ms"):
+            for n in (1, 20, evk.Camera.n_transfers):
+                r = _record_fifo(src, tmp / "loss.raw", n_transfers=n, link_bytes_s=link, consumer=consumer,
+                                 n_events=n_ev)
+                print(f"  {name:8s} {consumer:10s} {n:8d} {r['lost'] / 1e6:11.2f} MB "
+                      f"({r['lost'] / (r['lost'] + r['sent']):4.0%}) {r['jumps']:10d} {str(r['identical']):>11s} "
+                      f"{r['gap_ms']:6.1f}ms {r['cpu_ms_mev']:10.0f}")
+    print(f"  highest burst rate with no loss, {evk.Camera.n_transfers} requests, live consumer:")
+    for speed in (1.0, 1.05, 1.1):
+        r = _record_fifo(bursty, tmp / "loss.raw", n_transfers=evk.Camera.n_transfers, link_bytes_s=USB3_LINK_BYTES_S,
+                         consumer="live", n_events=n_b, speed=speed)
+        print(f"    bursts at {100 * speed:5.0f} Mev/s ({b_bytes / n_b * 100 * speed:4.0f} MB/s): lost "
+              f"{r['lost'] / 1e6:.2f} MB, file = sent {r['identical']}")
 
 
 if __name__ == "__main__":

@@ -211,6 +211,9 @@ def _table_group(parent: zarr.Group, name: str) -> zarr.Group:
     return parent.create_group(name, attributes={"n_committed": 0})
 
 
+_ABSENT = object()
+
+
 class _Table:
     """Writer side of one table: arrays sharing the first axis plus ``n_committed``.
 
@@ -239,10 +242,12 @@ class _Table:
         self.n = int(group.attrs["n_committed"])
         self._encoders = {name: _ChunkEncoder(arr) for name, arr in self.arrays.items() if _ChunkEncoder.fits(arr)}
         self._partial: dict[str, np.ndarray] = {}  # column -> committed rows of its last, partly filled chunk
+        self._keep_rows = 0  # rows a failed commit may have counted on disk: never trimmed away
 
     def append(self, cols: Mapping[str, np.ndarray], **attrs) -> None:
         """Write rows, then commit them (and ``attrs``) in one metadata write. On an OSError
-        nothing is committed and the space of the rows written so far is given back."""
+        nothing is committed: the space of the rows written so far is given back, unless the
+        commit itself failed and may have reached the disk (then the rows stay, see :meth:`trim`)."""
         m = len(next(iter(cols.values())))
         if m == 0 and not attrs:
             return
@@ -266,9 +271,25 @@ class _Table:
                     f.exception()
                 for f in futures:
                     f.result()
-            self.group.attrs.update({"n_committed": n_new, **attrs})
         except OSError:
             self._roll_back()
+            raise
+        before = {k: self.group.attrs.get(k, _ABSENT) for k in attrs}
+        try:
+            self.group.attrs.update({"n_committed": n_new, **attrs})
+        except OSError:
+            # the new count may have reached the disk all the same: put the old one (and the old
+            # attributes) back, and where even that fails never leave fewer rows than the disk
+            # may say are committed
+            try:
+                self.group.attrs.update({"n_committed": self.n,
+                                         **{k: v for k, v in before.items() if v is not _ABSENT}})
+                for k in (k for k, v in before.items() if v is _ABSENT):
+                    self.group.attrs.pop(k, None)
+            except OSError:
+                self._keep_rows = max(self._keep_rows, n_new)
+            else:
+                self._roll_back()
             raise
         self.n = n_new
         self._partial.update(partial)
@@ -280,10 +301,12 @@ class _Table:
         return -(-n_rows // step) * step if step else n_rows
 
     def trim(self) -> None:
-        """Size the arrays to the committed rows."""
+        """Size the arrays to the committed rows (or to the rows of a commit that failed in a
+        way that may have reached the disk)."""
+        rows = max(self.n, self._keep_rows)
         for arr in self.arrays.values():
-            if arr.shape[0] != self.n:
-                arr.resize((self.n, *arr.shape[1:]))
+            if arr.shape[0] != rows:
+                arr.resize((rows, *arr.shape[1:]))
 
     def _write_chunks(self, name: str, arr: zarr.Array, values: np.ndarray) -> np.ndarray:
         """Encode and write the chunks that rows ``n .. n + len(values)`` touch; returns the rows
@@ -313,7 +336,7 @@ class _Table:
 
     def replace(self, cols: Mapping[str, np.ndarray]) -> None:
         self.group.attrs["n_committed"] = 0
-        self.n = 0
+        self.n = self._keep_rows = 0
         self._partial = {}
         for arr in self.arrays.values():
             arr.resize((0, *arr.shape[1:]))

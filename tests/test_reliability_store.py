@@ -278,3 +278,35 @@ def test_kill_during_creation_leaves_a_directory_named_and_reusable(tmp_path):
     with S.create_session(path, width=640, height=480) as w:  # reused without --overwrite
         w.append_events(_events(10, seed=6))
     assert S.open_session(path).n_events == 10
+
+
+def test_a_commit_that_reaches_the_disk_and_still_fails_keeps_its_rows(tmp_path, monkeypatch):
+    """A count written and then reported as failed (the disk filled up meanwhile, and only
+    metadata that shrinks a column still fits): the rows it counts are never trimmed away, so
+    the store still opens with an exact prefix."""
+    src = _events(50_000, seed=2)
+    w = S.create_session(tmp_path / "s", width=640, height=480, flush_interval_s=0.0)
+    w.append_events(src[:20_000])
+    real_put = zarr.storage._local._put
+    full = []
+
+    def put(path, value, exclusive=False):
+        shrinking = path.name == "zarr.json" and path.parent.parent.name == "index"  # an index column resized
+        if full and not shrinking:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        if path.name == "zarr.json" and path.parent.name == "index" and b"n_committed" in bytes(value.as_buffer_like()):
+            real_put(path, value, exclusive=exclusive)  # on disk, and then the disk is full
+            full.append(path)
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real_put(path, value, exclusive=exclusive)
+
+    monkeypatch.setattr(zarr.storage._local, "_put", put)
+    with pytest.raises(S.SessionWriteError, match="No space left"):
+        w.append_events(src[20_000:])
+    with pytest.raises(OSError, match="No space left"):
+        w.close()
+    assert full
+    monkeypatch.setattr(zarr.storage._local, "_put", real_put)
+    s = S.open_session(tmp_path / "s")  # not "damaged: index/... holds fewer rows than committed"
+    got = s.events()
+    assert len(got) >= 20_000 and np.array_equal(got, src[:len(got)])

@@ -15,7 +15,7 @@ import threading
 
 from capture import cliargs
 
-from . import list_devices, open, record
+from . import Camera, list_devices, open, record
 from .bias_file import biases_of, write_bias_file
 from .fake import FakeEVK
 
@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="keep only this window, pixels")
     rec.add_argument("--crop", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
                      help="drop events outside this window in the sensor's digital readout, pixels")
+    rec.add_argument("--usb-transfers", type=cliargs.positive_int, default=Camera.n_transfers, metavar="N",
+                     help=f"bulk requests kept in flight on the data endpoint (default {Camera.n_transfers}; "
+                          "1 reads one at a time)")
     rec.add_argument("--fake", metavar="FILE",
                      help="stream this RAW file through the emulated EVK instead of hardware")
     rec.add_argument("--speed", choices=["recorded", "max"], default="recorded",
@@ -83,6 +86,7 @@ def _record(args) -> None:
     backend = FakeEVK(args.fake, pace=args.speed) if args.fake else None
     with open(args.serial, backend=backend) as cam:
         print(cam)
+        cam.n_transfers = args.usb_transfers
         cam.configure(biases=biases_of(args.bias_file, args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
                       anti_flicker_hz=args.anti_flicker, crop=args.crop)
         stop = threading.Event()
@@ -92,4 +96,5 @@ def _record(args) -> None:
         finally:
             signal.signal(signal.SIGINT, previous_handler)
     print(f"{stats.payload_bytes} bytes in {stats.stream_s:.1f} s to {stats.raw_path} "
-          f"({stats.stop_reason}); dropped {stats.dropped_bytes} B, time-base jumps {stats.time_jumps}")
+          f"({stats.stop_reason}, {stats.n_transfers} USB requests in flight); dropped {stats.dropped_bytes} B, "
+          f"time-base jumps {stats.time_jumps}")

@@ -13,7 +13,11 @@ way pyusb itself swaps libusb1 / libusb0 / openusb. The fake
 - streams the payload of a RAW file (after its ``%`` header) on the data endpoint once the
   sensor's start sequence ran, in device packets of the given sizes, either as fast as
   possible (``pace="max"``) or paced so that the stream's own timestamps (EVT3 / EVT2
-  TIME_HIGH words) drive wall-clock time (``pace="recorded"``);
+  TIME_HIGH words) drive wall-clock time (``pace="recorded"``), through an optional finite
+  device FIFO and USB link throughput (:mod:`capture.evk.fake_data`): data produced while no
+  request is pending and the FIFO is full is lost, as on the camera;
+- answers synchronous reads (pyusb's ``bulk_read``) and queued requests (the
+  ``bulk_in_queue`` hook, :mod:`capture.evk.transfers`) from the same device model;
 - injects faults: data-endpoint silence, stall or unplug after N bytes, permission denied,
   interface busy, old firmware, early-quirk ``bcdDevice``.
 
@@ -29,6 +33,7 @@ import errno
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import SimpleNamespace
@@ -38,6 +43,8 @@ import usb.backend
 import usb.core
 
 from . import seq_imx636
+from .fake_data import GONE, STALL, DataSide, wait_for
+from .transfers import Done
 from .treuzell import (
     FLAG_FAILURE,
     FLAG_WRITE,
@@ -141,39 +148,6 @@ def _split_raw(data: bytes) -> tuple[bytes, str | None]:
     return data[pos:], fmt
 
 
-def stream_times_us(payload: bytes, fmt: str, ends: np.ndarray) -> np.ndarray:
-    """Stream time (µs, unwrapped TIME_HIGH precision) reached at each packet end offset.
-
-    Parameters
-    ----------
-    payload : bytes
-        Event words.
-    fmt : str
-        ``"EVT3"`` (16-bit words) or ``"EVT2"``/``"EVT21"`` (32-bit words).
-    ends : ndarray of int, shape (P,)
-        Byte offsets of packet ends.
-    """
-    if fmt == "EVT3":
-        w = np.frombuffer(payload[: len(payload) // 2 * 2], dtype="<u2")
-        pos = np.flatnonzero((w >> 12) == 0x8)
-        th = (w[pos] & 0xFFF).astype(np.int64)
-        step = np.diff(th, prepend=th[:1])
-        loops = np.cumsum(step <= -2048)
-        t = (th + loops * 4096) << 12
-        word_bytes = 2
-    else:
-        # EVT2: one u32 per word; EVT2.1 legacy: u64 words whose low u32 holds the type.
-        word_bytes = 4 if fmt == "EVT2" else 8
-        w = np.frombuffer(payload[: len(payload) // word_bytes * word_bytes], dtype="<u4")
-        w = w if fmt == "EVT2" else w[0::2]
-        pos = np.flatnonzero((w >> 28) == 0x8)
-        t = (w[pos] & 0x0FFFFFFF).astype(np.int64) << 6
-    if t.size == 0:
-        return np.zeros(len(ends), dtype=np.int64)
-    k = np.searchsorted(pos * word_bytes, ends, side="left") - 1
-    return t[np.clip(k, 0, None)] - t[0]
-
-
 class _Handle:
     pass
 
@@ -228,6 +202,15 @@ class FakeEVK(usb.backend.IBackend):
         Die temperature the IMX636's ADC converts, °C.
     illuminance_lux : float
         Light level whose LIFO on-time count the IMX636 reports, lux.
+    fifo_bytes : int, optional
+        Device FIFO between sensor and USB (e.g. ``fake_data.EVK_FIFO_BYTES``); ``None`` (default)
+        never loses data.
+    link_bytes_s : float, optional
+        USB throughput, bytes/s (``fake_data.USB3_LINK_BYTES_S``, ``USB2_LINK_BYTES_S``);
+        ``None`` (default) is unlimited.
+    usbfs_bytes : int, optional
+        Memory for pending queued requests (Linux's usbfs budget, 16 MiB by default and shared
+        by every device); a request beyond it fails with ENOMEM. ``None``: no limit.
     """
 
     def __init__(
@@ -255,6 +238,9 @@ class FakeEVK(usb.backend.IBackend):
         realtime_delays: bool = False,
         temperature_c: float = 38.0,
         illuminance_lux: float = 800.0,
+        fifo_bytes: int | None = None,
+        link_bytes_s: float | None = None,
+        usbfs_bytes: int | None = None,
     ):
         if sensor not in _SENSORS:
             raise ValueError(f"sensor must be one of {sorted(_SENSORS)}, got {sensor!r}")
@@ -295,7 +281,6 @@ class FakeEVK(usb.backend.IBackend):
         self._strings = {1: "Prophesee", 2: spec["product"]}
         self._answers: list[bytes] = []
         self._gone = False
-        self._stalled = False
         self._open = False
         self._claimed = False
 
@@ -316,31 +301,39 @@ class FakeEVK(usb.backend.IBackend):
         sizes = np.atleast_1d(np.asarray(packet_bytes, dtype=np.int64))
         if sizes.size == 0 or (sizes <= 0).any():
             raise ValueError("packet_bytes must be positive")
+        if fifo_bytes is not None and fifo_bytes <= 0:
+            raise ValueError(f"fifo_bytes must be > 0, got {fifo_bytes}")
+        if link_bytes_s is not None and link_bytes_s <= 0:
+            raise ValueError(f"link_bytes_s must be > 0, got {link_bytes_s}")
         reps = -(-len(payload) // int(sizes.sum())) if payload else 0
         ends = np.cumsum(np.tile(sizes, max(reps, 1)))
         ends = ends[: np.searchsorted(ends, len(payload)) + 1]
         ends[-1] = len(payload)
-        self._ends = ends if payload else np.zeros(0, dtype=np.int64)
-        starts = np.concatenate([[0], self._ends[:-1]]) if payload else self._ends
-        self._short = ((self._ends - starts) % self.max_packet_size) != 0
-        self._times_s = (
-            stream_times_us(payload, self.format, self._ends) / 1e6 / self.speed
-            if payload else np.zeros(0)
-        )
-        self._pos = 0  # bytes served
-        self._pkt = 0  # index of the packet containing _pos
-        self._t0_wall = None
-        self._pause = pause_after_bytes
-        self._pause_until = None
-        self._stall_at = stall_after_bytes
-        self._gone_at = disconnect_after_bytes
+        ends = ends if payload else np.zeros(0, dtype=np.int64)
+        starts = np.concatenate([[0], ends[:-1]]) if payload else ends
+        short = ((ends - starts) % self.max_packet_size) != 0
+        self._data = DataSide(payload, self.format, ends, short, pace=pace, speed=self.speed,
+                              fifo_bytes=fifo_bytes, link_bytes_s=link_bytes_s,
+                              stall_at=stall_after_bytes, gone_at=disconnect_after_bytes,
+                              pause=pause_after_bytes)
+        self.usbfs_bytes = usbfs_bytes
         self._lock = threading.Lock()
 
     # ---- test helpers -----------------------------------------------------------------
     @property
     def bytes_served(self) -> int:
-        """Payload bytes delivered on the data endpoint so far."""
-        return self._pos
+        """Bytes delivered on the data endpoint so far."""
+        return self._data.served
+
+    def served_payload(self) -> bytes:
+        """Every byte delivered on the data endpoint so far, in order (the payload less what the
+        device FIFO lost)."""
+        return b"".join(self.payload[s:e] for s, e in self._data.served_ranges)
+
+    @property
+    def dropped_bytes(self) -> int:
+        """Bytes the device FIFO could not hold (lost before the host saw them)."""
+        return self._data.dropped_bytes
 
     def register_log(self) -> list[tuple]:
         """The ``R``/``W``/``D`` entries of :attr:`log`, in order."""
@@ -348,7 +341,7 @@ class FakeEVK(usb.backend.IBackend):
 
     def unplug(self) -> None:
         """Emulate pulling the cable now."""
-        self._gone = True
+        self._gone = self._data.gone = True
 
     # ---- driver hooks -----------------------------------------------------------------
     def sleep_us(self, us: int) -> None:
@@ -359,11 +352,11 @@ class FakeEVK(usb.backend.IBackend):
 
     def end_of_stream(self) -> bool:
         """True once the whole payload has been served (nothing more will come)."""
-        return self._pos >= len(self.payload)
+        return self._data.exhausted
 
     # ---- enumeration and descriptors ----------------------------------------------------
     def _check_present(self):
-        if self._gone:
+        if self._gone or self._data.gone:
             raise _usb_error(-4, errno.ENODEV, "No such device (it may have been disconnected)")
 
     def enumerate_devices(self):
@@ -453,7 +446,7 @@ class FakeEVK(usb.backend.IBackend):
         self._check_present()
         self.log.append(("usb", "clear_halt", ep))
         if ep == EP_DATA:
-            self._stalled = False
+            self._data.stalled = False
 
     def reset_device(self, dev_handle):
         self._check_present()
@@ -592,74 +585,89 @@ class FakeEVK(usb.backend.IBackend):
             self.registers[s.LIFO_STATUS] = 1 << 29 | min(max(counter, 1), (1 << 27) - 1)
 
     # ---- data endpoint ------------------------------------------------------------------
-    def _limit(self) -> int:
-        """Payload offset the next read may not cross (faults), or the end."""
-        limit = len(self.payload)
-        for at in (self._stall_at, self._gone_at, self._pause[0] if self._pause else None):
-            if at is not None and self._pos < at:
-                limit = min(limit, at)
-        return limit
-
-    def _available_end(self, now: float) -> int:
-        """End offset of the data the device has produced by ``now``."""
-        if self.pace == "max":
-            return len(self.payload)
-        k = int(np.searchsorted(self._times_s, now - self._t0_wall, side="right"))
-        return int(self._ends[k - 1]) if k > 0 else 0
-
     def _data_read(self, buff, timeout_ms: int) -> int:
-        deadline = time.monotonic() + (timeout_ms / 1000 if timeout_ms else 3600.0)
-        out = memoryview(buff).cast("B")
-        n_max = len(out)
-        got = 0
-        while True:
-            self._check_present()
-            if self._stalled:
+        """One synchronous read: a single request pending until it completes (pyusb)."""
+        side = self._data
+        with self._lock:
+            if side.stalled:
                 raise _usb_error(-9, errno.EPIPE, "Pipe error")
-            now = time.monotonic()
-            if self._gone_at is not None and self._pos >= self._gone_at:
-                self._gone = True
-                if got:
-                    return got
-                continue
-            if self._stall_at is not None and self._pos >= self._stall_at:
-                self._stall_at = None
-                self._stalled = True
-                if got:
-                    return got
-                continue
-            if self._pause and self._pos >= self._pause[0]:
-                self._pause_until = now + self._pause[1]
-                self._pause = None
-            running = _running(self.sensor, self.registers)
-            if running and self._t0_wall is None:
-                self._t0_wall = now - (self._times_s[self._pkt] if self._pkt < len(self._times_s) else 0.0)
-            if not running:
-                self._t0_wall = None
-            avail = 0
-            if running and (self._pause_until is None or now >= self._pause_until):
-                self._pause_until = None
-                avail = min(self._available_end(now), self._limit())
-            if avail > self._pos:
-                pkt_end = int(self._ends[self._pkt])
-                end = min(avail, pkt_end, self._pos + (n_max - got))
-                n = end - self._pos
-                out[got:got + n] = self.payload[self._pos:end]
-                got += n
-                self._pos = end
-                if self._pos == pkt_end:
-                    short = bool(self._short[self._pkt])
-                    self._pkt += 1
-                    if short:
-                        return got  # a short USB packet ends the transfer
-                if got == n_max:
-                    return got
-                continue
+            req = side.submit(memoryview(buff).cast("B"), timeout_ms, time.monotonic(), self._running())
+        wait_for(side, req, self._running, self._lock)
+        with self._lock:
+            side.requests.remove(req)
+        if req.got and req.status in ("completed", "timed_out", STALL, GONE):
+            return req.got  # libusb: TIMED_OUT with data; pyusb returns the count
+        if req.status == GONE:
+            raise _usb_error(-4, errno.ENODEV, "No such device (it may have been disconnected)")
+        if req.status == STALL:
+            raise _usb_error(-9, errno.EPIPE, "Pipe error")
+        raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+
+    def _running(self) -> bool:
+        return _running(self.sensor, self.registers)
+
+    def bulk_in_queue(self, dev_handle, ep: int) -> FakeQueue:
+        """Asynchronous bulk-IN requests on ``ep`` (the hook :func:`capture.evk.transfers.open_queue`
+        uses): the same interface as :class:`capture.evk.transfers.LibusbQueue`."""
+        self._check_present()
+        if ep != EP_DATA:
+            raise _usb_error(-9, errno.EPIPE, "Pipe error")
+        self.log.append(("usb", "queue", ep))
+        return FakeQueue(self)
+
+
+class FakeQueue:
+    """Queued requests on the fake's data endpoint; they fill while Python does other things
+    (the device model is brought up to date at each call, see :mod:`capture.evk.fake_data`)."""
+
+    def __init__(self, fake: FakeEVK):
+        self._fake = fake
+        self._order: deque = deque()  # (request, buffer)
+
+    @property
+    def pending(self) -> int:
+        return len(self._order)
+
+    def submit(self, buffer, timeout_ms: int) -> None:
+        fake = self._fake
+        with fake._lock:
+            if fake._gone:
+                raise _usb_error(-4, errno.ENODEV, "No such device (it may have been disconnected)")
+            in_use = sum(r.size for r in fake._data.requests)
+            if fake.usbfs_bytes is not None and in_use + len(buffer) > fake.usbfs_bytes:
+                raise _usb_error(-11, errno.ENOMEM, "Insufficient memory")
+            req = fake._data.submit(memoryview(buffer).cast("B"), timeout_ms, time.monotonic(), fake._running())
+        self._order.append((req, buffer))
+
+    def reap(self, timeout_s: float) -> Done | None:
+        if not self._order:
+            return None
+        fake, side = self._fake, self._fake._data
+        req, buffer = self._order[0]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with fake._lock:
+                now = time.monotonic()
+                side.advance(now, fake._running())
+                if req.status is not None:
+                    side.requests.remove(req)
+                    self._order.popleft()
+                    return Done(buffer, req.got, req.status)
+                wake = side.next_wake(now)
             if now >= deadline:
-                if got:
-                    return got  # libusb: TIMED_OUT with data; pyusb returns the count
-                raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
-            wait = deadline - now
-            if running and self.pace == "recorded" and self._pkt < len(self._times_s):
-                wait = min(wait, max(self._times_s[self._pkt] - (now - self._t0_wall), 0.0))
-            time.sleep(min(wait, 0.005) if wait > 0 else 0)
+                return None
+            time.sleep(min(wake, max(deadline - now, 0.0)))
+
+    def cancel(self) -> None:
+        with self._fake._lock:
+            self._fake._data.advance(time.monotonic(), self._fake._running())
+            for req, _ in self._order:
+                if req.status is None:
+                    req.status = "cancelled"
+
+    def close(self) -> None:
+        self.cancel()
+        with self._fake._lock:
+            for req, _ in self._order:
+                self._fake._data.requests.remove(req)
+        self._order.clear()

@@ -42,14 +42,17 @@ class RecordStats:
         The streaming decoder's own counters (damage, time jumps...).
     decode_backlog_bytes : int
         Bytes of the RAW file not decoded yet (kept current by the decoder thread while recording).
+    n_transfers : int
+        Bulk-IN requests kept in flight (1: synchronous reads, one at a time).
     n_reads, n_full_reads, n_timeouts : int
-        Bulk reads with data, reads that filled the whole buffer (a hint that the device
-        side may be overflowing), reads that timed out (idle).
+        Bulk requests that returned data, requests that filled their whole buffer (a hint
+        that the device side may be overflowing), requests that timed out empty (idle).
     queue_peak_bytes : int
         Highest queue occupancy.
     read_gap_us, max_read_gap_us : float
-        Mean and longest time between two data reads, with no read pending (pyusb has one
-        at a time): the device must buffer the data produced meanwhile.
+        Mean and longest time from handling a completed request to submitting the next. With
+        synchronous reads nothing is pending meanwhile and the device must buffer what it
+        produces; with queued requests the others keep filling.
     stream_s : float
         Wall-clock time until streaming ended and every byte was on disk.
     duration_s, cpu_s : float
@@ -72,6 +75,7 @@ class RecordStats:
     gaps: list = field(default_factory=list)
     time_jumps: int = 0
     decoder_stats: dict = field(default_factory=dict)
+    n_transfers: int = 1
     n_reads: int = 0
     n_full_reads: int = 0
     n_timeouts: int = 0
@@ -270,6 +274,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
             stats.cpu_s = time.process_time() - c0
             reader = camera.reader
             if reader is not None:
+                stats.n_transfers = reader.n_transfers
                 stats.n_reads, stats.n_full_reads = reader.n_reads, reader.n_full_reads
                 stats.n_timeouts = reader.n_timeouts
                 stats.dropped_bytes, stats.overflows = reader.dropped_bytes, reader.n_overflows

@@ -1,16 +1,19 @@
 """Data path: the USB reader thread, its bounded byte queue and EVT3 time-base monitoring.
 
-pyusb has one synchronous read in flight at a time (the HAL keeps 20 asynchronous 128 KiB
-transfers queued). The reader thread therefore does nothing but back-to-back large bulk
-reads (a multiple of ``wMaxPacketSize``) and hands the bytes to a bounded queue; decoding
-and disk writes happen on the consumer's thread (:func:`capture.evk.record`). When the
-queue is full the chunk is dropped, counted and marked by a :class:`Gap` so that the loss is
-reported, never silent.
+The reader thread keeps many bulk-IN requests queued on the data endpoint
+(:mod:`capture.evk.transfers`, as the HAL's 20 asynchronous 128 KiB transfers), reaps them
+in order and hands the bytes to a bounded queue; decoding and disk writes happen on the
+consumer's threads (:func:`capture.evk.record`). Where the USB backend cannot queue requests
+it falls back to back-to-back synchronous reads, one in flight. When the queue is full the
+chunk is dropped, counted and marked by a :class:`Gap` so that the loss is reported, never
+silent.
 """
 
 from __future__ import annotations
 
 import array
+import errno
+import logging
 import threading
 import time
 from collections import deque
@@ -21,9 +24,18 @@ import numpy as np
 import usb.core
 
 from .errors import EvkError, usb_error
+from .transfers import Done
 
 DRAIN_TIMEOUT_MS = 10
 DRAIN_MAX_READS = 256
+CANCEL_WAIT_S = 2.0
+"""How long cancelled requests may take to come back before the reader gives up on them."""
+
+_ABANDONED: list = []
+"""Transfer queues whose requests never came back after a cancel: kept alive for good, so that
+libusb never writes into freed memory."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -105,13 +117,18 @@ class ByteQueue:
 
 
 class Reader(threading.Thread):
-    """Reader thread: back-to-back bulk reads on the data endpoint into a :class:`ByteQueue`.
+    """Reader thread: bulk-IN requests on the data endpoint into a :class:`ByteQueue`.
 
-    Reads go straight into pooled buffers (no copy; short reads, under a quarter of the
-    buffer, are copied out so that small chunks do not pin big buffers), so the endpoint is
-    without a pending request only for pyusb's call overhead between reads; the consumer
-    hands each chunk back with :meth:`release` once written. :attr:`gap_s` totals that
-    request-less time.
+    With a transfer queue (``transfers``), ``n_transfers`` requests of ``read_bytes`` stay
+    in flight: each one reaped is replaced at once, so the host controller keeps filling the
+    others while Python is busy (the HAL's scheme, first timeouts staggered as the HAL does).
+    Without one, back-to-back synchronous reads leave the endpoint without a request between
+    two reads. :attr:`gap_s` totals the time from handling one completed request to
+    submitting the next.
+
+    Requests fill pooled buffers (no copy; short results, under half the buffer, are
+    copied out so that small chunks do not pin big buffers); the consumer hands each chunk
+    back with :meth:`release` once written.
 
     Timeouts without data are normal (idle sensor) and only counted. Any other USB error
     (stall, unplug, I/O) ends the thread with :attr:`error` set; everything read before it
@@ -133,10 +150,15 @@ class Reader(threading.Thread):
         Backend hook (file-backed fakes): returns True when no more data will ever come.
     name : str
         Camera name for messages.
+    transfers : object, optional
+        A transfer queue from :func:`capture.evk.transfers.open_queue`; ``None`` reads
+        synchronously.
+    n_transfers : int
+        Requests kept in flight with ``transfers``.
     """
 
     def __init__(self, dev, ep: int, *, read_bytes: int, timeout_ms: int, capacity_bytes: int,
-                 end_of_stream=None, name: str = "EVK"):
+                 end_of_stream=None, name: str = "EVK", transfers=None, n_transfers: int = 64):
         super().__init__(name=f"evk-reader-{name}", daemon=True)
         self.dev = dev
         self.ep = ep
@@ -156,9 +178,12 @@ class Reader(threading.Thread):
         self.end_of_stream = False
         self.gap_s = 0.0
         self.max_gap_s = 0.0
+        self.transfers = transfers
+        self.n_transfers = int(n_transfers) if transfers is not None else 1
         self._free: deque = deque()
         self._n_buffers = 0
-        self._max_buffers = max(2, self.queue.capacity_bytes // self.read_bytes + 1)
+        # queued chunks hold at least half a buffer each (smaller ones are copied out)
+        self._max_buffers = 2 * self.queue.capacity_bytes // self.read_bytes + self.n_transfers + 1
 
     def _buffer(self) -> array.array | None:
         try:
@@ -192,6 +217,107 @@ class Reader(threading.Thread):
         return n
 
     def run(self) -> None:
+        if self.transfers is not None:
+            self._run_queued()
+        else:
+            self._run_sync()
+
+    def _hand_over(self, buf, n: int, *, by_reference: bool = True) -> bool:
+        """Queue ``n`` bytes read into ``buf``; True if the queue now owns ``buf`` (the caller
+        then needs another buffer). A result under half the buffer is copied out (so that a
+        buffer lent to the queue always carries at least half its size); a long one in a buffer
+        that may not be lent (``by_reference=False``), or a full queue, loses the bytes."""
+        self.bytes_read += n
+        if n == self.read_bytes:
+            self.n_full_reads += 1
+        if n * 2 < self.read_bytes:
+            if self.queue.put(Chunk(memoryview(buf)[:n].tobytes(), n)):
+                return False
+        elif by_reference and self.queue.put(Chunk(buf, n)):
+            return True
+        self._lose(n)
+        return False
+
+    def _lose(self, n: int) -> None:
+        """``n`` bytes read cannot be kept: counted, and marked in the queue by a :class:`Gap`."""
+        self.dropped_bytes += n
+        self.n_overflows += 1
+        self.queue.put_gap(n)
+
+    def _run_queued(self) -> None:
+        q, queue, eos, clock = self.transfers, self.queue, self._eos, time.perf_counter
+        where = f"reading the data endpoint of {self.camera_name}"
+        cancel_by = None  # clock time by which every cancelled request must be back
+        try:
+            for i in range(self.n_transfers):  # HAL: first timeouts staggered over one period
+                try:
+                    q.submit(self._buffer(), self.timeout_ms + i * self.timeout_ms // self.n_transfers)
+                except usb.core.USBError as exc:
+                    if i == 0 or exc.errno != errno.ENOMEM:
+                        raise
+                    log.warning("%s: only %d of %d USB requests could be queued (%s; Linux shares 16 MiB of "
+                                "usbfs memory between all devices)", self.camera_name, i, self.n_transfers, exc)
+                    self.n_transfers = i
+                    break
+            while q.pending:
+                if self._stop_event.is_set() and cancel_by is None:
+                    q.cancel()
+                    cancel_by = clock() + CANCEL_WAIT_S
+                if cancel_by is not None and clock() > cancel_by:
+                    raise EvkError(f"{q.pending} USB requests of {self.camera_name} still pending "
+                                   f"{CANCEL_WAIT_S:.0f} s after they were cancelled")
+                done: Done | None = q.reap(0.05)
+                if done is None:
+                    continue
+                buf, n, status = done
+                t_done = clock()
+                if n or status == "completed":
+                    self.n_reads += 1
+                spare = buf
+                if n and status in ("overflow", "error"):  # the device sent more than asked: not data
+                    self._lose(n)
+                elif n:
+                    spare = self._buffer()
+                    if spare is None:  # every pooled buffer is queued: keep buf for the next request
+                        self._hand_over(buf, n, by_reference=False)
+                        spare = buf
+                    elif not self._hand_over(buf, n):
+                        self._free.append(spare)
+                        spare = buf
+                if status == "timed_out" and not n:
+                    self.n_timeouts += 1
+                    if eos is not None and eos():
+                        self.end_of_stream = True
+                        self._stop_event.set()
+                elif status not in ("completed", "timed_out") and not (cancel_by is not None and status == "cancelled"):
+                    if self.error is None:
+                        self.error = usb_error(_status_error(status), where)
+                    self._stop_event.set()
+                if not self._stop_event.is_set():
+                    q.submit(spare, self.timeout_ms)
+                    gap = clock() - t_done
+                    self.gap_s += gap
+                    self.max_gap_s = max(self.max_gap_s, gap)
+                else:
+                    self._free.append(spare)
+        except usb.core.USBError as exc:
+            if self.error is None:
+                self.error = usb_error(exc, where)
+        except EvkError as exc:
+            if self.error is None:
+                self.error = exc
+        except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
+            self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
+        finally:
+            try:
+                q.close()
+            except Exception as exc:  # noqa: BLE001 - requests still pending: never free their memory
+                _ABANDONED.append(q)
+                if self.error is None:
+                    self.error = EvkError(f"closing the USB requests of {self.camera_name} failed: {exc!r}")
+            queue.close()
+
+    def _run_sync(self) -> None:
         read, ep, timeout, size = self.dev.read, self.ep, self.timeout_ms, self.read_bytes
         queue, eos, clock = self.queue, self._eos, time.perf_counter
         scratch = array.array("B", bytes(size))  # used only when every pooled buffer is queued
@@ -222,22 +348,10 @@ class Reader(threading.Thread):
                 self.n_reads += 1
                 if not n:
                     continue
-                self.bytes_read += n
-                if n == size:
-                    self.n_full_reads += 1
-                if n * 4 < size:  # short read: copy it out, keep the big buffer (bounded memory)
-                    chunk = Chunk(memoryview(target)[:n].tobytes(), n)
-                elif buf is not None:
-                    chunk = Chunk(buf, n)
-                else:
-                    chunk = None
-                if chunk is not None and queue.put(chunk):
-                    if chunk.buffer is buf:
-                        buf = None  # now owned by the queue; take another from the pool
-                else:  # queue full: the data is lost, counted and marked
-                    self.dropped_bytes += n
-                    self.n_overflows += 1
-                    queue.put_gap(n)
+                if buf is None:  # read into the scratch buffer: every pooled one is queued
+                    self._hand_over(scratch, n, by_reference=False)
+                elif self._hand_over(buf, n):
+                    buf = None  # now owned by the queue; take another from the pool
         except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
             self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
         finally:
@@ -248,6 +362,12 @@ class Reader(threading.Thread):
         self._stop_event.set()
         if self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
+
+
+def _status_error(status: str) -> usb.core.USBError:
+    """The pyusb error matching a failed transfer's libusb status."""
+    code = {"stall": errno.EPIPE, "no_device": errno.ENODEV, "timed_out": errno.ETIMEDOUT}.get(status, errno.EIO)
+    return usb.core.USBError(f"bulk transfer ended with status {status}", None, code)
 
 
 class TimeHighMonitor:

@@ -369,7 +369,7 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
     if stats is not None:
         recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
                          gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
-                         payload_bytes=int(stats.payload_bytes))
+                         payload_bytes=int(stats.payload_bytes), usb_transfers=int(stats.n_transfers))
     if raw_write_error:
         recording["raw_write_error"] = " ".join(raw_write_error.split())
     if temperature_c is not None:
