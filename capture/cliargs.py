@@ -65,6 +65,38 @@ def flicker_band(text: str) -> tuple[int, int]:
     return low, high
 
 
+def trail_filter(text: str) -> tuple[str, int]:
+    """argparse type: the event camera's trail filter, ``KIND`` or ``KIND:MS`` with KIND one of
+    ``trail``, ``stc-cut``, ``stc-keep`` and MS the longest gap within a burst (1-100 ms,
+    default 10); returns ``(kind, threshold_us)`` as ``capture.evk.Camera.set_trail_filter``
+    takes them."""
+    kind, colon, ms = text.partition(":")
+    if kind not in ("trail", "stc-cut", "stc-keep"):
+        raise argparse.ArgumentTypeError(f"expected trail, stc-cut or stc-keep[:MS], got {text!r}")
+    try:
+        threshold_ms = int(ms) if colon else 10
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{kind}: {ms!r} is not a whole number of ms") from None
+    if not 1 <= threshold_ms <= 100:
+        raise argparse.ArgumentTypeError(f"{kind}: {threshold_ms} ms is outside 1-100 ms")
+    return kind.replace("-", "_"), threshold_ms * 1000
+
+
+def add_sensor_mode_args(ap: argparse.ArgumentParser) -> None:
+    """The event camera's ``--trail-filter``, ``--sync`` and ``--event-format`` options (IMX636),
+    and ``--usb-transfers``."""
+    ap.add_argument("--trail-filter", type=trail_filter, metavar="trail|stc-cut|stc-keep[:MS]",
+                    help="event camera: filter event bursts in the sensor (trail: first event of each "
+                         "burst; stc-cut: one event per edge, lone noise events dropped; stc-keep: the "
+                         "burst less its first event, noise dropped; MS: burst gap, default 10)")
+    ap.add_argument("--sync", choices=["standalone", "master", "slave"],
+                    help="event camera: time base shared over the SYNC cable (start the slave first)")
+    ap.add_argument("--event-format", choices=["EVT3", "EVT21"],
+                    help="event camera: output format (default EVT3; EVT21 takes about 4x the bandwidth)")
+    ap.add_argument("--usb-transfers", type=positive_int, metavar="N",
+                    help="event camera: USB requests kept in flight (default 64; 1 reads one at a time)")
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer > 0."""
     try:

@@ -26,7 +26,15 @@ import sys
 import threading
 from pathlib import Path
 
-from capture.cliargs import add_ball_args, ball_attr, box, flicker_band, name_int, run_command
+from capture.cliargs import (
+    add_ball_args,
+    add_sensor_mode_args,
+    ball_attr,
+    box,
+    flicker_band,
+    name_int,
+    run_command,
+)
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
 from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
@@ -60,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--erc", type=float, metavar="EV_S", help="event-rate cap, events per second")
     ap.add_argument("--anti-flicker", type=flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
                     help="event camera: drop events of lights flickering in this band (mains frequency, or Hz)")
+    add_sensor_mode_args(ap)
     ap.add_argument("--gopro-serial", help="GoPro serial (its wired-USB address is derived from it)")
     ap.add_argument("--gopro-fps", type=int, default=240, help="GoPro frame rate (default 240)")
     ap.add_argument("--gopro-res", default="1080", help="GoPro resolution (default 1080)")
@@ -134,7 +143,10 @@ def _devices(args, out: Path):
         return
     ball = ball_attr(args)
     settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=biases_of(args.bias_file, args.bias),
-                              roi=args.roi, crop=args.crop, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker, max_duration_s=args.duration,
+                              roi=args.roi, crop=args.crop, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker,
+                              trail_filter=args.trail_filter, sync_mode=args.sync, event_format=args.event_format,
+                              usb_transfers=args.usb_transfers,
+                              max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet,
                               attrs={"ball": ball} if ball else {})
     if args.fake:
@@ -143,6 +155,8 @@ def _devices(args, out: Path):
         if not Path(args.fake).is_file():
             raise RecorderError(f"{args.fake}: no such RAW file")
         settings.backend = FakeEVK(args.fake, pace=args.speed)
+        if settings.backend.format != "EVT3":  # stream the file's format unless told otherwise
+            settings.event_format = args.event_format or settings.backend.format
     if args.gopro_serial:
         from capture.gopro import GoPro
 

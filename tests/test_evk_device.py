@@ -329,7 +329,7 @@ def test_recorder_sets_anti_flicker_and_stores_it(shared_raw_dir, tmp_path):
     (b"", "is empty"),
     (b"% format EVT3;height=720;width=1280\n% end\n", "holds no event data"),
     (b"\x89PNG\r\n\x1a\n" + bytes(64), "is not a Prophesee RAW recording"),
-    (b"% evt 2.0\n% end\n" + bytes(64), "is an EVT2 recording; the emulated EVK streams EVT3"),
+    (b"% evt 2.0\n% end\n" + bytes(64), "is an EVT2 recording; the emulated EVK4 streams EVT3 or EVT21"),
 ])
 def test_fake_refuses_files_it_cannot_present(tmp_path, capsys, content, match):
     from capture.evk.cli import main

@@ -15,7 +15,7 @@ import threading
 
 from capture import cliargs
 
-from . import Camera, list_devices, open, record
+from . import list_devices, open, record
 from .bias_file import biases_of, write_bias_file
 from .fake import FakeEVK
 
@@ -41,14 +41,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor bias, repeatable (IMX636: offset from the factory trim)")
     rec.add_argument("--anti-flicker", type=cliargs.flicker_band, metavar="50Hz|60Hz|LOW,HIGH",
                      help="drop events of lights flickering in this band (mains frequency, or Hz)")
+    cliargs.add_sensor_mode_args(rec)
     rec.add_argument("--trigger", action="store_true", default=None, help="enable the external trigger input")
     rec.add_argument("--roi", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
                      help="keep only this window, pixels")
     rec.add_argument("--crop", type=cliargs.box, metavar="X,Y,WIDTH,HEIGHT",
                      help="drop events outside this window in the sensor's digital readout, pixels")
-    rec.add_argument("--usb-transfers", type=cliargs.positive_int, default=Camera.n_transfers, metavar="N",
-                     help=f"bulk requests kept in flight on the data endpoint (default {Camera.n_transfers}; "
-                          "1 reads one at a time)")
     rec.add_argument("--fake", metavar="FILE",
                      help="stream this RAW file through the emulated EVK instead of hardware")
     rec.add_argument("--speed", choices=["recorded", "max"], default="recorded",
@@ -84,11 +82,16 @@ def _list() -> None:
 
 def _record(args) -> None:
     backend = FakeEVK(args.fake, pace=args.speed) if args.fake else None
+    event_format = args.event_format
+    if backend is not None and backend.format != "EVT3":  # stream the file's format unless told otherwise
+        event_format = event_format or backend.format
     with open(args.serial, backend=backend) as cam:
-        print(cam)
-        cam.n_transfers = args.usb_transfers
+        if args.usb_transfers is not None:
+            cam.n_transfers = args.usb_transfers
         cam.configure(biases=biases_of(args.bias_file, args.bias), roi=args.roi, erc_ev_s=args.erc, trigger_in=args.trigger,
-                      anti_flicker_hz=args.anti_flicker, crop=args.crop)
+                      anti_flicker_hz=args.anti_flicker, crop=args.crop, trail_filter=args.trail_filter,
+                      sync_mode=args.sync, event_format=event_format)
+        print(cam)
         stop = threading.Event()
         previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.set())
         try:

@@ -385,9 +385,12 @@ class Camera:
                   roi: tuple[int, int, int, int] | None = None,
                   erc_ev_s: float | None = None, trigger_in: bool | None = None,
                   anti_flicker_hz: tuple[int, int] | None = None,
-                  crop: tuple[int, int, int, int] | None = None) -> None:
-        """Apply the recording settings that are given, in this order: biases, ROI, digital
-        crop, event rate cap, anti-flicker, trigger input. A setting left ``None`` is not touched.
+                  crop: tuple[int, int, int, int] | None = None,
+                  trail_filter: tuple[str, int] | None = None,
+                  sync_mode: str | None = None, event_format: str | None = None) -> None:
+        """Apply the recording settings that are given, in this order: event format, biases,
+        ROI, digital crop, event rate cap, anti-flicker, trail filter, synchronisation, trigger
+        input. A setting left ``None`` is not touched.
 
         Parameters
         ----------
@@ -402,14 +405,23 @@ class Camera:
             Event rate cap for :meth:`set_erc`, events/s.
         anti_flicker_hz : (int, int), optional
             Flicker band for :meth:`set_anti_flicker`, Hz.
+        trail_filter : (str, int), optional
+            ``(kind, threshold_us)`` for :meth:`set_trail_filter`.
+        sync_mode : str, optional
+            ``"standalone"``, ``"master"`` or ``"slave"`` (:meth:`set_sync_mode`).
+        event_format : str, optional
+            ``"EVT3"`` or ``"EVT21"`` (:meth:`set_event_format`).
         trigger_in : bool, optional
             Enable (``True``) or disable (``False``) the external trigger input.
 
         Raises
         ------
-        BiasRangeError, ValueError
-            A value out of range; settings before it in the order above are already applied.
+        BiasRangeError, ValueError, EvkError
+            A value out of range, or a setting the sensor lacks; settings before it in the
+            order above are already applied.
         """
+        if event_format is not None:
+            self.set_event_format(event_format)
         if biases:
             self.set_biases(**biases)
         if roi is not None:
@@ -420,6 +432,10 @@ class Camera:
             self.set_erc(erc_ev_s)
         if anti_flicker_hz is not None:
             self.set_anti_flicker(anti_flicker_hz)
+        if trail_filter is not None:
+            self.set_trail_filter(*trail_filter)
+        if sync_mode is not None:
+            self.set_sync_mode(sync_mode)
         if trigger_in is not None:
             self.enable_trigger_in(trigger_in)
 
@@ -471,6 +487,90 @@ class Camera:
         if not hasattr(self.sensor, "set_anti_flicker"):
             raise EvkError(f"the {self.sensor.name} has no anti-flicker block")
         self.sensor.set_anti_flicker(band_hz)
+
+    def erc_status(self) -> tuple[bool, float]:
+        """``(enabled, cap in events/s)`` of the event rate controller, read back from the
+        sensor (IMX636, Gen4.1).
+
+        Raises
+        ------
+        EvkError
+            On a sensor without one (Gen3.1).
+        """
+        read = getattr(self.sensor, "erc_status", None)
+        if read is None:
+            raise EvkError(f"the {self.sensor.name} has no event rate controller")
+        return read()
+
+    def set_trail_filter(self, kind: str | None, threshold_us: int = 10_000) -> None:
+        """Filter event bursts and noise in the sensor (IMX636): ``kind`` ``"trail"`` (keep the
+        first event of each burst), ``"stc_cut"`` (keep the second event after a polarity change,
+        drop lone events) or ``"stc_keep"`` (drop the first, keep the rest of the burst, drop
+        lone events); ``threshold_us`` the longest gap within a burst, 1,000..100,000 µs (whole
+        ms); ``None`` switches it off.
+
+        Raises
+        ------
+        ValueError
+            An unknown kind or a threshold out of range.
+        EvkError
+            On a sensor this driver does not filter on (Gen3.1, Gen4.1), or when the block does
+            not report its initialisation.
+        """
+        self._imx636_only("set_trail_filter", "trail filter")(kind, threshold_us)
+
+    def set_sync_mode(self, mode: str) -> None:
+        """Share one time base between cameras wired by their SYNC connectors (IMX636):
+        ``"master"`` drives it, ``"slave"`` follows it, ``"standalone"`` (the default) ignores it.
+        Only while not streaming; start the slave before the master.
+
+        Raises
+        ------
+        ValueError
+            An unknown mode.
+        EvkError
+            While streaming, or on a sensor this driver does not synchronise (Gen3.1, Gen4.1).
+        """
+        if self._streaming:
+            raise EvkError(f"{self._usb.where}: the sync mode can only change while not streaming")
+        if mode == "standalone" and getattr(self.sensor, "set_sync_mode", None) is None:
+            return  # what every sensor is at open
+        self._imx636_only("set_sync_mode", "synchronisation")(mode)
+
+    def set_event_format(self, fmt: str) -> None:
+        """Select the sensor's output format (IMX636): ``"EVT3"`` (default, about 2 bytes per
+        event) or ``"EVT21"`` (EVT 2.1, legacy word order, 8 bytes per word); :attr:`info`
+        follows. Only while not streaming.
+
+        Raises
+        ------
+        ValueError
+            An unknown format.
+        EvkError
+            While streaming, or on a sensor this driver keeps in EVT3 (Gen3.1, Gen4.1).
+        """
+        if self._streaming:
+            raise EvkError(f"{self._usb.where}: the event format can only change while not streaming")
+        if fmt == self.info.format and getattr(self.sensor, "set_event_format", None) is None:
+            return  # the format it streams already
+        self._imx636_only("set_event_format", "format selection")(fmt)
+        self.info.format = self.sensor.event_format()
+
+    @property
+    def trail_filter(self) -> tuple[str, int] | None:
+        """``(kind, threshold_us)`` of the sensor's trail filter as last set, or None (off)."""
+        return getattr(self.sensor, "trail_filter", None)
+
+    @property
+    def sync_mode(self) -> str:
+        """``"standalone"``, ``"master"`` or ``"slave"``, as last set (standalone at open)."""
+        return getattr(self.sensor, "sync_mode", "standalone")
+
+    def _imx636_only(self, method: str, what: str):
+        fn = getattr(self.sensor, method, None)
+        if fn is None:
+            raise EvkError(f"the {self.sensor.name} has no {what} in this driver (IMX636 only)")
+        return fn
 
     def temperature_c(self) -> float:
         """The sensor's die temperature, °C (IMX636 / EVK4; its ADC's resolution is 0.19 °C).

@@ -10,8 +10,8 @@ way pyusb itself swaps libusb1 / libusb0 / openusb. The fake
   :attr:`FakeEVK.log` (``("W", device, address, value)``, ``("R", device, address)``,
   ``("D", microseconds)`` for driver delays, ``("prop", property, payload)`` for other
   commands and ``("usb", action, ...)`` for USB-level calls);
-- streams the payload of a RAW file (after its ``%`` header) on the data endpoint once the
-  sensor's start sequence ran, in device packets of the given sizes, either as fast as
+- streams the payload of a RAW file (after its ``%`` header; EVT3, or EVT 2.1 for the IMX636
+  once the driver selected it) on the data endpoint once the sensor's start sequence ran, in device packets of the given sizes, either as fast as
   possible (``pace="max"``) or paced so that the stream's own timestamps (EVT3 / EVT2
   TIME_HIGH words) drive wall-clock time (``pace="recorded"``), through an optional finite
   device FIFO and USB link throughput (:mod:`capture.evk.fake_data`): data produced while no
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import array
 import errno
+import logging
 import struct
 import threading
 import time
@@ -60,6 +61,7 @@ from .treuzell import (
 )
 
 EP_CTRL_IN, EP_CTRL_OUT, EP_DATA = 0x82, 0x02, 0x81
+log = logging.getLogger(__name__)
 LIBUSB_SPEED_SUPER = 4
 
 _SENSORS = {
@@ -83,6 +85,11 @@ _SENSORS = {
             0x9008: 0x640,
             # Anti-flicker block at its register-map defaults, initialisation done.
             0xC004: 0x34, 0xC008: 0x89C0F, 0xC0C0: 0x0A05A5A0, 0xC0C4: 0x4,
+            # Trail filter (STC) block at its register-map defaults, not initialised; bypassed (0x5:
+            # assumed, the map gives 0; the HAL writes it before anything else).
+            0xD000: 0x5, 0xD004: 0x2710 << 1, 0xD008: 0x186A0 << 1, 0xD00C: 0xD | 1 << 5 | 1 << 9,
+            0xD0C0: 4 | 0x118 << 12 | 0xA << 24,
+            0x0044: 0xCCFFFCCF,  # dig_pad2_ctrl: SYNC pad as input
             # Factory-trimmed bias registers (ND's EVK4 values; idac_ctl in the low byte).
             0x1004: 0x11A1E853,
             0x100C: 0x11A1FF00,
@@ -127,11 +134,12 @@ def _usb_error(code: int, err: int, text: str) -> usb.core.USBError:
     return usb.core.USBError(text, code, err)
 
 
-def _split_raw(data: bytes) -> tuple[bytes, str | None]:
-    """(payload, format) of a RAW file's bytes: skip the ``%`` header lines (format None when
-    the header names none)."""
+def _split_raw(data: bytes) -> tuple[bytes, str | None, bool]:
+    """(payload, format, legacy) of a RAW file's bytes: skip the ``%`` header lines (format None
+    when the header names none; legacy: EVT 2.1 words in the legacy order, the IMX636's)."""
     pos = 0
     fmt = None
+    legacy = False
     while pos < len(data) and data[pos:pos + 1] == b"%":
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end + 1
@@ -142,10 +150,11 @@ def _split_raw(data: bytes) -> tuple[bytes, str | None]:
             fmt = "EVT21"
         elif "evt 3.0" in line or "format evt3" in line:
             fmt = "EVT3"
+        legacy |= "endianness=legacy" in line or line.split() == ["%", "endianness", "legacy"]
         pos = end
         if line.strip() == "% end":
             break
-    return data[pos:], fmt
+    return data[pos:], fmt, legacy
 
 
 class _Handle:
@@ -288,11 +297,16 @@ class FakeEVK(usb.backend.IBackend):
             data = Path(raw_path).read_bytes()
             if not data:
                 raise ValueError(f"FakeEVK: {raw_path} is empty")
-            payload, self.format = _split_raw(data)
-            if self.format != "EVT3":  # every emulated sensor streams EVT3, as the EVK's defaults
+            payload, self.format, legacy = _split_raw(data)
+            if self.format == "EVT21" and not legacy:
+                raise ValueError(f"FakeEVK: {raw_path} is EVT 2.1 in the standard word order; an IMX636 "
+                                 "streams the legacy order (endianness=legacy)")
+            streams = ("EVT3", "EVT21") if sensor == "imx636" else ("EVT3",)
+            if self.format not in streams:  # what the emulated sensor can be set to stream
                 raise ValueError(f"FakeEVK: {raw_path} is " + (f"an {self.format} recording" if self.format else
                                  "not a Prophesee RAW recording (no header naming its format)")
-                                 + "; the emulated EVK streams EVT3 (read other files with capture.ingest raw)")
+                                 + f"; the emulated {spec['product']} streams {' or '.join(streams)} "
+                                 "(read other files with capture.ingest raw)")
             if not payload:
                 raise ValueError(f"FakeEVK: {raw_path} holds no event data")
         else:
@@ -317,6 +331,8 @@ class FakeEVK(usb.backend.IBackend):
                               stall_at=stall_after_bytes, gone_at=disconnect_after_bytes,
                               pause=pause_after_bytes)
         self.usbfs_bytes = usbfs_bytes
+        self._stc_done = False
+        self._warned_format = False
         self._lock = threading.Lock()
 
     # ---- test helpers -----------------------------------------------------------------
@@ -534,6 +550,8 @@ class FakeEVK(usb.backend.IBackend):
                         self.log.append(("W", device, address + 4 * i, value))
                         if self.sensor == "imx636" and address + 4 * i == seq_imx636.ADC_CONTROL:
                             self._adc_convert()
+                        if self.sensor == "imx636" and address + 4 * i == seq_imx636.STC_INITIALIZATION:
+                            self._stc_init(value)
                 return ok(struct.pack("<II", device, address))
             count = w[2]
             values = []
@@ -576,6 +594,15 @@ class FakeEVK(usb.backend.IBackend):
             self.registers[s.ADC_STATUS] = 1 << 11 | dac
             self.registers[s.ADC_CONTROL] = ctrl & ~(1 << 2)  # the start bit clears itself
 
+    def _stc_init(self, written: int) -> None:
+        """The trail filter's SRAM init: writing 1 to ``stc_flag_init_done`` [2] clears it, a
+        request ``stc_req_init`` [0] completes at once and sets it (the request bit clears)."""
+        done = bool(self._stc_done) and not written >> 2 & 1
+        if written & 1:
+            done = True
+        self._stc_done = done
+        self.registers[seq_imx636.STC_INITIALIZATION] = (written & ~0b101) | int(done) << 2
+
     def _lifo_count(self) -> None:
         """The IMX636's LIFO light counter, counting (lifo_en and lifo_cnt_en set): the on-time
         count that the HAL's conversion turns into ``illuminance_lux``, flagged valid."""
@@ -604,7 +631,17 @@ class FakeEVK(usb.backend.IBackend):
         raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
 
     def _running(self) -> bool:
-        return _running(self.sensor, self.registers)
+        """Streaming, in the file's format: an EVT2.1 file streams once the driver selected
+        EVT2.1 (``edf/pipeline_control`` bit 1), an EVT3 file while EVT3 is selected."""
+        running = _running(self.sensor, self.registers)
+        if self.sensor == "imx636" and bool(self.registers.get(seq_imx636.EDF_PIPELINE_CONTROL, 0) & 0x2) != (
+                self.format == "EVT21"):
+            if running and not self._warned_format:
+                self._warned_format = True
+                log.warning("fake EVK: its recording is %s but the driver selected the other format, so "
+                            "nothing is streamed (select %s: --event-format %s)", self.format, self.format, self.format)
+            return False
+        return running
 
     def bulk_in_queue(self, dev_handle, ep: int) -> FakeQueue:
         """Asynchronous bulk-IN requests on ``ep`` (the hook :func:`capture.evk.transfers.open_queue`

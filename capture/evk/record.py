@@ -38,6 +38,9 @@ class RecordStats:
         ``(payload offset, dropped bytes)`` for every overflow gap in the RAW file.
     time_jumps : int
         EVT3 TIME_HIGH discontinuities (lost data on the link, or idle periods [uncertain]).
+    time_base_monitored : bool
+        Whether the stream's time base is checked for discontinuities (EVT3); an EVT 2.1
+        stream is not, so data lost on the link would go unseen there.
     decoder_stats : dict
         The streaming decoder's own counters (damage, time jumps...).
     decode_backlog_bytes : int
@@ -74,6 +77,7 @@ class RecordStats:
     overflows: int = 0
     gaps: list = field(default_factory=list)
     time_jumps: int = 0
+    time_base_monitored: bool = True
     decoder_stats: dict = field(default_factory=dict)
     n_transfers: int = 1
     n_reads: int = 0
@@ -91,7 +95,8 @@ class RecordStats:
 
     @property
     def lossless(self) -> bool:
-        """No host-side drop and no time-base discontinuity detected."""
+        """No host-side drop and no time-base discontinuity detected (the latter checked in
+        EVT3 only: see :attr:`time_base_monitored`)."""
         return self.dropped_bytes == 0 and self.time_jumps == 0 and self.error is None
 
 
@@ -216,6 +221,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         stats = RecordStats(raw_path=raw_path)
     stats.raw_path = raw_path
     monitor = TimeHighMonitor() if camera.info.format == "EVT3" else None
+    stats.time_base_monitored = monitor is not None
     header = _header(camera)
     t0, c0 = time.monotonic(), time.process_time()
     decode = None

@@ -8,6 +8,8 @@ orders them and computes the few values that depend on user input.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import seq_gen31, seq_gen41, seq_imx636
@@ -70,6 +72,8 @@ class Imx636:
         self.biases: dict[str, int] = {}
         self.erc_count = seq_imx636.ERC_DEFAULT_COUNT
         self.anti_flicker_hz: tuple[int, int] | None = None
+        self.trail_filter: tuple[str, int] | None = None
+        self.sync_mode = "standalone"
 
     @classmethod
     def probe(cls, link: TzLink, device: int) -> bool:
@@ -292,6 +296,79 @@ class Imx636:
         self.link.write_reg(self.device, seq_imx636.ERC_TARGET, count)
         self.erc_count = count
 
+    def erc_status(self) -> tuple[bool, float]:
+        """(enabled, cap in events/s) read back from the sensor as the HAL does
+        (``Gen41Erc::is_enabled``, ``get_cd_event_rate``): running and dropping, and the target
+        count per reference period. The register map has no drop counter."""
+        s = seq_imx636
+        control, dropping, period_us, count = self.run((("R", s.ERC_CONTROL), ("R", s.ERC_T_DROPPING),
+                                                        ("R", s.ERC_REFERENCE_PERIOD), ("R", s.ERC_TARGET)))
+        enabled = control & 0x3 == 1 and bool(dropping & 1)
+        return enabled, count * 1_000_000 / period_us if period_us else float("nan")
+
+    # ---- event format -------------------------------------------------------------------
+    def set_event_format(self, fmt: str) -> None:
+        """Select the output format, ``"EVT3"`` or ``"EVT21"`` (EVT 2.1, legacy word order; 8
+        bytes per event word instead of 2): the HAL's two RMWs, only while not streaming."""
+        if fmt not in seq_imx636.FORMATS:
+            raise ValueError(f"{self.name} streams EVT3 or EVT21, not {fmt!r}")
+        self.run(seq_imx636.FORMATS[fmt])
+
+    # ---- event trail filter ---------------------------------------------------------------
+    def set_trail_filter(self, kind: str | None, threshold_us: int = 10_000) -> None:
+        """Filter bursts and noise in the sensor (OpenEB ``EventTrailFilter``): ``kind`` one of
+        ``seq_imx636.STC_KINDS`` (``trail``, ``stc_cut``, ``stc_keep``), ``threshold_us`` the
+        longest gap inside a burst, 1,000..100,000 µs, rounded to whole ms as the HAL does;
+        ``None`` bypasses the block.
+
+        The HAL's register traffic: bypass, clear the init flag and start the SRAM init, the
+        kind's parameters, the time base for the threshold (its table), the init flag polled
+        up to three times, then on.
+
+        Raises
+        ------
+        ValueError
+            An unknown kind or a threshold out of range (nothing written).
+        EvkError
+            The block does not report its initialisation done (it is left bypassed).
+        """
+        s = seq_imx636
+        if kind is not None and kind not in s.STC_KINDS:
+            raise ValueError(f"trail filter kind must be one of {', '.join(s.STC_KINDS)}, got {kind!r}")
+        ms = math.floor(threshold_us / 1000.0 + 0.5)  # C's roundf: halves away from zero, as the HAL
+        if kind is not None and not (1000 <= threshold_us <= 100_000):
+            raise ValueError(f"trail filter threshold {threshold_us} µs is outside 1000..100000 µs")
+        self.run((("W", s.STC_PIPELINE_CONTROL, 0b101),))
+        self.trail_filter = None
+        if kind is None:
+            return
+        prescaler, multiplier, timeout = s.STC_TIMING[ms - 1]
+        field = (ms * 1000) << 1
+        if kind == "trail":
+            params = (("RMW", s.STC_PARAM, 0, 1),
+                      ("RMW", s.TRAIL_PARAM, 1 | field, 0xFFFFF))
+        else:
+            keep = int(kind == "stc_keep") << 24
+            params = (("RMW", s.STC_PARAM, 1 | field | keep, 0xFFFFF | 1 << 24),
+                      ("RMW", s.TRAIL_PARAM, 0, 1))
+        self.run((("RMW", s.STC_INITIALIZATION, 1 << 2, 1 << 2), ("RMW", s.STC_INITIALIZATION, 1, 1), *params,
+                  ("RMW", s.STC_TIMESTAMPING, prescaler | multiplier << 5 | 1 << 16, 0x1F | 0xF << 5 | 1 << 16),
+                  ("RMW", s.STC_INVALIDATION, timeout << 12, 0xFFF << 12)))
+        if not any(self.link.read_reg(self.device, s.STC_INITIALIZATION) & (1 << 2) for _ in range(3)):
+            raise EvkError(f"{self.name} trail filter did not report its initialisation done (register 0xD0C4)")
+        self.run((("W", s.STC_PIPELINE_CONTROL, 0b001),))
+        self.trail_filter = (kind, ms * 1000)
+
+    # ---- synchronisation ------------------------------------------------------------------
+    def set_sync_mode(self, mode: str) -> None:
+        """Time base of several cameras: ``"standalone"`` (own clock), ``"master"`` (drives the
+        SYNC pad) or ``"slave"`` (follows it); the HAL's ``time_base_config``. Set it before
+        starting; start the slave before the master."""
+        if mode not in seq_imx636.SYNC_MODES:
+            raise ValueError(f"sync mode must be one of {', '.join(seq_imx636.SYNC_MODES)}, got {mode!r}")
+        self.run(seq_imx636.SYNC_MODES[mode])
+        self.sync_mode = mode
+
     # ---- trigger in ---------------------------------------------------------------------
     def enable_trigger_in(self, enabled: bool = True, channel: int = 0) -> None:
         """Enable or disable external trigger input channel 0 (``Main``; the only one)."""
@@ -308,6 +385,9 @@ class Gen41(Imx636):
     seq = seq_gen41
     temperature_c = None  # the HAL reads no temperature from a Gen4.1 behind the CX3 (EVK3 HD)
     illuminance_lux = None  # nor a light level
+    set_trail_filter = None  # its STC block has other fields and thresholds: not driven here
+    set_sync_mode = None  # nor its time-base synchronisation
+    set_event_format = None  # nor its format selection (EVT3 only)
 
     @classmethod
     def probe(cls, link: TzLink, device: int) -> bool:

@@ -222,11 +222,26 @@ ROI_RESET = (
 TRIGGER_IN_DISABLE = (("RMW", 0x7004, 0, 1 << 10),)  # B38
 TRIGGER_IN_ENABLE = (("RMW", 0x7004, 1 << 10, 1 << 10),)
 
-# B39: standalone time base: mode 0, external_mode 1, external_mode_enable 0, us_counter_max 100.
-STANDALONE = (("RMW", 0x9008, (100 << 4) | (1 << 2), 0x7FE),)
+TIME_BASE_CTRL = 0x9008  # ro/time_base_ctrl: enable [0], mode [1] (1 external), external_mode [2] (1 master),
+#                          external_mode_enable [3], us counter [10:4] (100 = 1 µs)
+DIG_PAD2_CTRL = 0x0044  # pad_sync [19:16]: 0b1100 SYNC pad as output (master), 0b1111 as input (slave)
+
+
+def time_base(external: bool, master: bool) -> tuple:
+    """OpenEB ``TzImx636::time_base_config``: one RMW of ``time_base_ctrl`` (the enable bit
+    untouched), then, for an external time base, the SYNC pad's direction."""
+    value = int(external) << 1 | int(master) << 2 | int(external) << 3 | 100 << 4
+    ops = (("RMW", TIME_BASE_CTRL, value, 0x7FE),)
+    if external:
+        ops += (("RMW", DIG_PAD2_CTRL, (0b1100 if master else 0b1111) << 16, 0xF << 16),)
+    return ops
+
+
+SYNC_MODES = {"standalone": time_base(False, True), "master": time_base(True, True), "slave": time_base(True, False)}
+STANDALONE = SYNC_MODES["standalone"]  # B39: what the HAL sets at open
 
 # HAL order after INIT: POST_INIT, ERC_INIT, bias reads (B34), ROI_RESET, TRIGGER_IN_DISABLE,
-# STANDALONE (B19-B20 only when a non-default format is requested; we keep EVT3).
+# STANDALONE. (B19-B20, the format selection, come only with a format other than EVT3: FORMATS.)
 POST_INIT = POST_INIT_ADC + POST_INIT_MIRROR + POST_INIT_LIFO
 
 ERC_ENABLE = (("RMW", 0x6050, 1, 1),)  # t_dropping_en <- 1 (then 0x600C is rewritten)
@@ -235,7 +250,45 @@ ERC_REFERENCE_PERIOD = 0x6008  # [9:0] µs
 ERC_TARGET = 0x600C  # [21:0] events per period
 ERC_MAX_COUNT = 640000
 ERC_DEFAULT_COUNT = 10000
+ERC_CONTROL = 0x6000  # [1:0] == 1: the block is running (initialised)
+ERC_T_DROPPING = 0x6050  # t_dropping_en [0]
 EDF_PIPELINE_CONTROL = 0x7000  # bit 1: 0 = EVT3, 1 = EVT2.1
+EOI_CONTROL = 0x8000  # [7:6] output byte order: 2 = 16-bit LE (EVT3), 0 = 32-bit LE (EVT2.1)
+FORMATS = {  # OpenEB TzImx636::set_output_format: two RMWs, done while not streaming
+    "EVT3": (("RMW", EDF_PIPELINE_CONTROL, 0, 0x2), ("RMW", EOI_CONTROL, 2 << 6, 0x3 << 6)),
+    "EVT21": (("RMW", EDF_PIPELINE_CONTROL, 0x2, 0x2), ("RMW", EOI_CONTROL, 0, 0x3 << 6)),
+}
+
+# Event trail filter / STC (OpenEB EventTrailFilter, register map stc/*).
+STC_PIPELINE_CONTROL = 0xD000  # whole word: 0b101 bypassed (off), 0b001 on
+STC_PARAM = 0xD004  # stc_enable [0], stc_threshold [19:1] (µs), disable_stc_cut_trail [24]
+TRAIL_PARAM = 0xD008  # trail_enable [0], trail_threshold [19:1] (µs)
+STC_TIMESTAMPING = 0xD00C  # prescaler [4:0], multiplier [8:5], enable_last_ts_update_at_every_event [16]
+STC_INVALIDATION = 0xD0C0  # dt_fifo_timeout [23:12]
+STC_INITIALIZATION = 0xD0C4  # stc_req_init [0], stc_flag_init_done [2] (write 1 to clear)
+STC_THRESHOLD_MS = (1, 100)
+STC_KINDS = ("trail", "stc_cut", "stc_keep")
+"""``trail``: keep the first event of a burst of one polarity; ``stc_cut``: after a polarity
+change drop the first event and the trail, keep the second; ``stc_keep``: drop the first event,
+keep the trail. Both STC kinds drop lone events (the sensor's noise)."""
+# (prescaler, multiplier, dt_fifo_timeout) per threshold in ms (1..100), the HAL's Gen4.1/IMX636 table
+STC_TIMING = (
+    (12, 15, 90), (10, 3, 90), (11, 5, 95), (9, 1, 102), (13, 15, 90), (11, 3, 114), (11, 3, 90),
+    (12, 5, 109), (13, 9, 122), (13, 9, 90), (10, 1, 102), (14, 15, 109), (13, 7, 117), (14, 13, 127),
+    (12, 3, 138), (12, 3, 90), (12, 3, 90), (14, 11, 99), (13, 5, 109), (13, 5, 109), (14, 9, 122),
+    (14, 9, 122), (11, 1, 209), (11, 1, 138), (11, 1, 138), (15, 15, 147), (15, 15, 147), (14, 7, 158),
+    (14, 7, 158), (15, 13, 170), (15, 13, 170), (13, 3, 185), (13, 3, 185), (13, 3, 185), (13, 3, 90),
+    (13, 3, 90), (15, 11, 202), (15, 11, 99), (15, 11, 99), (15, 11, 99), (14, 5, 109), (14, 5, 109),
+    (14, 5, 109), (14, 5, 109), (15, 9, 248), (15, 9, 122), (15, 9, 122), (15, 9, 122), (15, 9, 122),
+    (12, 1, 280), (12, 1, 280), (12, 1, 138), (12, 1, 138), (12, 1, 138), (12, 1, 138), (16, 15, 147),
+    (16, 15, 147), (16, 15, 147), (15, 7, 158), (15, 7, 158), (15, 7, 158), (15, 7, 158), (15, 7, 158),
+    (16, 13, 171), (16, 13, 171), (16, 13, 171), (16, 13, 171), (16, 13, 171), (14, 3, 185), (14, 3, 185),
+    (14, 3, 185), (14, 3, 185), (14, 3, 185), (16, 11, 409), (16, 11, 202), (16, 11, 202), (16, 11, 202),
+    (16, 11, 202), (16, 11, 202), (16, 11, 202), (15, 5, 451), (15, 5, 223), (15, 5, 223), (15, 5, 223),
+    (15, 5, 223), (15, 5, 223), (15, 5, 223), (15, 5, 223), (16, 9, 501), (16, 9, 501), (16, 9, 501),
+    (16, 9, 248), (16, 9, 248), (16, 9, 248), (16, 9, 248), (16, 9, 248), (16, 9, 248), (16, 9, 248),
+    (13, 1, 564), (13, 1, 564),
+)
 
 # Anti-flicker (AFK) block, OpenEB register map `afk/*` and AntiFlickerFilter::enable.
 AFK_PIPELINE_CONTROL = 0xC000  # 0b101 = off (also while configuring), 0b001 = on

@@ -9,6 +9,7 @@ is :mod:`capture.pipeline.replay`'s; ``python -m capture.run`` composes the two.
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import sys
 import threading
 import time
@@ -55,6 +56,14 @@ class RecordSettings:
         ``(x, y, width, height)`` px: the sensor's digital crop (events outside it dropped).
     anti_flicker_hz : (int, int) or None
         The event camera's anti-flicker band, Hz (stored in the session's sensor attributes).
+    trail_filter : (str, int) or None
+        The event camera's trail filter, ``(kind, threshold_us)`` (``Camera.set_trail_filter``).
+    sync_mode : str or None
+        ``standalone``, ``master`` or ``slave`` (None: the camera's default, standalone).
+    event_format : str or None
+        ``EVT3`` or ``EVT21`` (None: EVT3).
+    usb_transfers : int or None
+        USB requests kept in flight on the data endpoint (None: ``Camera.n_transfers``).
     erc_ev_s : float or None
         Event-rate cap, ev/s.
     gopro : object or None
@@ -88,6 +97,10 @@ class RecordSettings:
     crop: tuple | None = None
     erc_ev_s: float | None = None
     anti_flicker_hz: tuple[int, int] | None = None
+    trail_filter: tuple[str, int] | None = None
+    sync_mode: str | None = None
+    event_format: str | None = None
+    usb_transfers: int | None = None
     trigger_in: bool = True
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)
@@ -199,6 +212,8 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
         raise RecorderError(f"{out}: only {disk_free_bytes(out) / 2**20:.0f} MiB free on disk")
 
     camera = evk.open(settings.serial, backend=settings.backend)
+    if settings.usb_transfers is not None:
+        camera.n_transfers = settings.usb_transfers
     messages: list[str] = []
     writer = store = live = review = gopro_media = stats = None
     progress = evk.RecordStats(raw_path=out / RAW_NAME)
@@ -211,12 +226,17 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
     try:
         info = camera.info
         camera.configure(biases=settings.biases, roi=settings.roi, crop=settings.crop, erc_ev_s=settings.erc_ev_s or None,
-                         trigger_in=settings.trigger_in or None, anti_flicker_hz=settings.anti_flicker_hz)
+                         trigger_in=settings.trigger_in or None, anti_flicker_hz=settings.anti_flicker_hz,
+                         trail_filter=settings.trail_filter, sync_mode=settings.sync_mode,
+                         event_format=settings.event_format)
         attrs = {"sensor": {"board": info.board, "sensor": info.sensor, "serial": info.serial,
                             "format": info.format, "firmware": info.firmware,
                             "width": info.width, "height": info.height,
                             "biases": camera.get_biases(), "erc_ev_s": settings.erc_ev_s,
+                            "erc": _erc_status(camera),
                             "anti_flicker_hz": settings.anti_flicker_hz, "roi": settings.roi, "crop": settings.crop,
+                            "trail_filter": list(camera.trail_filter) if camera.trail_filter else None,
+                            "sync_mode": camera.sync_mode,
                             "temperature_c": _reading(camera.temperature_c, 1),
                             "illuminance_lux": _reading(camera.illuminance_lux, 0)},
                  "raw_file": RAW_NAME, **settings.attrs}
@@ -289,6 +309,9 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             if stats.time_jumps:
                 messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
                                 "(lost data on the link, or idle periods)")
+            if not stats.time_base_monitored:
+                messages.append(f"{stats.raw_path.name} is {camera.info.format}: its time base is not checked "
+                                "for gaps, so data lost on the USB link would go unseen (EVT3 is)")
     finally:
         if store is not None:
             store.close()
@@ -316,6 +339,16 @@ def _reading(read, digits: int) -> float | None:
         return round(float(read()), digits)
     except (EvkError, OSError, ValueError):
         return None
+
+
+def _erc_status(camera) -> dict | None:
+    """The event rate controller as the sensor reports it (``{"enabled", "cap_ev_s"}``), or None
+    where it has none or the reading fails."""
+    try:
+        enabled, cap = camera.erc_status()
+    except (EvkError, OSError):
+        return None
+    return {"enabled": bool(enabled), "cap_ev_s": round(cap) if math.isfinite(cap) else None}
 
 
 def _cut_short_hint(out: Path) -> str:
@@ -368,7 +401,8 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
                  "ended_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     if stats is not None:
         recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
-                         gaps=[list(map(int, g)) for g in stats.gaps], time_jumps=int(stats.time_jumps),
+                         gaps=[list(map(int, g)) for g in stats.gaps],
+                         time_jumps=int(stats.time_jumps) if stats.time_base_monitored else None,
                          payload_bytes=int(stats.payload_bytes), usb_transfers=int(stats.n_transfers))
     if raw_write_error:
         recording["raw_write_error"] = " ".join(raw_write_error.split())
