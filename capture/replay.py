@@ -9,6 +9,7 @@ A recording cut short (killed, crashed) is first completed from its RAW file
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -22,20 +23,26 @@ PROG = "python -m capture.replay"
 
 
 def add_spin_args(ap: argparse.ArgumentParser) -> None:
-    """The spin-window options of an analysis (``--window-us``, ``--max-window-us``, ``--step-us``,
-    ``--method``); :func:`spin_options` reads them back."""
+    """The options of an analysis (``--window-us``, ``--max-window-us``, ``--step-us``,
+    ``--method``, ``--flicker-hz``); :func:`spin_options` reads them back."""
     ap.add_argument("--window-us", type=int, default=ReplayOptions.window_us, help="shortest spin window, µs")
     ap.add_argument("--max-window-us", type=int, default=ReplayOptions.max_window_us,
                     help="longest spin window (for balls that fire few events), µs")
     ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
+    ap.add_argument("--flicker-hz", type=float, metavar="HZ",
+                    help="lights flickered at this frequency (100 on 50 Hz mains, 120 on 60 Hz) and the "
+                         "sensor's anti-flicker was off: leave their events out of ball detection")
 
 
 def spin_options(args, **options) -> ReplayOptions:
     """:class:`ReplayOptions` from the arguments of :func:`add_spin_args` (and ``options``)."""
+    if args.flicker_hz is not None and not (math.isfinite(args.flicker_hz) and args.flicker_hz > 0):
+        raise ValueError(f"--flicker-hz must be a positive number of Hz, got {args.flicker_hz}")
+    tracker = {"flicker_hz": args.flicker_hz} if args.flicker_hz else {}
     return ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us, step_us=args.step_us,
-                         method=args.method, **options)
+                         method=args.method, tracker=tracker, **options)
 
 
 def build_parser() -> argparse.ArgumentParser:

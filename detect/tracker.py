@@ -42,6 +42,7 @@ from capture.events import EVENT_DTYPE, Track, concatenate
 from detect.event_detector import (CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle,
                                    hough_circles)
 from detect.frame_detector import FrameDetector
+from detect.flicker import FlickerFilter, flicker_mask
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
 
@@ -190,6 +191,11 @@ class BallTracker:
         window (around the prediction); slices are joined until a window holds them.
     max_window_us : int
         Longest window, µs (a multiple of ``slice_us``).
+    flicker_hz : float, optional
+        A light flickering at this frequency (100 / 120 Hz: twice the mains) lights the scene:
+        events of pixels that fired at the same phase one period earlier are left out of
+        detection (:class:`detect.flicker.FlickerFilter`; the first period is not filtered).
+        None (default): no filtering.
     """
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
@@ -197,7 +203,7 @@ class BallTracker:
                  model: str = "ca", gravity_px_s2=(0.0, 0.0), q_px_s3: float = 3.0e4, gate_chi2: float = 25.0,
                  cell_px: int = 4, frame_sigma_px: float = 1.5, hot_pixels: bool = True, smooth: bool = True,
                  smooth_lag_us: int = 100_000, search_events: int = 600, track_events: int = 200,
-                 max_window_us: int = 40_000):
+                 max_window_us: int = 40_000, flicker_hz: float | None = None):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
         if slice_us <= 0 or block_us % slice_us:
@@ -228,6 +234,7 @@ class BallTracker:
         self._ball_rate = 0.0  # the tracked ball's events per µs near the prediction (recent windows)
         self._outlier_fits: list = []  # fits outside the gate since the last update (a hit, a bounce?)
         self._hot = HotPixelMap(width, height) if hot_pixels else None
+        self._flicker = FlickerFilter(width, height, flicker_hz) if flicker_hz is not None else None
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
         self._frame_seq = itertools.count()
@@ -263,6 +270,8 @@ class BallTracker:
         if events.dtype != EVENT_DTYPE:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
         self._check(events)
+        if self._flicker is not None and len(events):
+            events = events[~self._flicker.flags(events["t"], events["x"], events["y"])]
         if len(events):
             if self._block0 is None:
                 self._block0 = int(events["t"][0]) // self.block_us * self.block_us
@@ -713,7 +722,7 @@ class BallTracker:
             self._flight_final = final
 
 def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, frame_times_us=None,
-               **opts) -> Track:
+               flicker_hz: float | None = None, **opts) -> Track:
     """Track the ball through a recording.
 
     Parameters
@@ -726,6 +735,11 @@ def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, fram
         Camera frames (grey or BGR) in the event camera's pixel geometry.
     frame_times_us : array_like of int, optional
         Mid-exposure time of each frame on the event clock, µs (required with ``frames``).
+    flicker_hz : float, optional
+        A light flickering at this frequency (100 / 120 Hz) lights the scene: events of pixels
+        that fire at the same phase one period earlier or later are left out of detection
+        (:func:`detect.flicker.flicker_mask`: the whole recording is filtered, its first period
+        too).
     **opts
         Options of :class:`BallTracker`.
 
@@ -740,5 +754,10 @@ def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, fram
             raise ValueError("frame_times_us must be given with frames, one time per frame")
         for image, t in zip(frames, frame_times_us):
             tracker.update_frame(image, int(t))
+    events = np.asarray(events)
+    if flicker_hz is not None and events.dtype == EVENT_DTYPE:  # (another dtype: update says so)
+        tracker._check(events)  # order and bounds first (one line naming the problem)
+        tracker._last_t = None
+        events = events[~flicker_mask(events, tracker.width, tracker.height, flicker_hz)]
     tracker.update(events)
     return tracker.finish()

@@ -1,0 +1,148 @@
+"""Software anti-flicker for detection: a 100 Hz light's events are flagged, a crossing ball's are
+kept, the streaming filter equals itself batch by batch, and the tracker finds the ball under the
+light when told its frequency (also through the replay command line)."""
+
+import numpy as np
+import pytest
+
+import sim
+from capture.events import EVENT_DTYPE
+from detect import BallTracker, DetectInputError, track_ball
+from detect.flicker import FlickerFilter, flicker_mask
+from sim.esim import flicker_events
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def lamp():
+    """80 ms of a 100 Hz light (depth 0.1) over the whole small sensor."""
+    ev = flicker_events(W, H, 0, 80_000, np.random.default_rng(1), freq_hz=100.0, depth=0.1)
+    assert len(ev) > 50_000
+    return ev
+
+
+def test_a_flickering_light_is_flagged_after_its_first_period(lamp):
+    f = FlickerFilter(W, H, 100.0)
+    flags = f.flags(lamp["t"], lamp["x"], lamp["y"])
+    first = lamp["t"] < 10_000
+    assert not flags[first].any()  # nothing to compare with yet
+    assert flags[~first].mean() > 0.97
+    assert f.n_flagged == flags.sum()
+    both = flicker_mask(lamp, W, H, 100.0)
+    assert both.mean() > 0.97 and both[first].mean() > 0.97  # a whole recording: looks ahead too
+
+
+@pytest.mark.parametrize("phase_bins", [0.0, 0.3, 31.7, 16.0])
+def test_a_lamp_at_any_phase_is_flagged(phase_bins):
+    """One event per pixel per period, at a phase on or near the period's edge (where the
+    neighbouring bins belong to other periods), jittered by 50 µs."""
+    rng = np.random.default_rng(4)
+    n_pix, periods = 400, 12
+    ev = np.zeros(n_pix * periods, EVENT_DTYPE)
+    t = (np.arange(periods)[:, None] * 10_000 + phase_bins * 312.5 + rng.normal(0, 50, (periods, n_pix))).ravel()
+    ev["t"] = np.clip(np.round(t), 0, None)
+    ev["x"] = np.tile(np.arange(n_pix) % W, periods)
+    ev["y"] = np.tile(np.arange(n_pix) // W, periods)
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    flags = FlickerFilter(W, H, 100.0).flags(ev["t"], ev["x"], ev["y"])
+    assert flags[ev["t"] >= 12_000].mean() > 0.97
+
+
+def test_edge_cases_of_the_filter(lamp):
+    f = FlickerFilter(W, H, 100.0)
+    assert f.flags(lamp["t"][:0], lamp["x"][:0], lamp["y"][:0]).shape == (0,)
+    assert flicker_mask(lamp[:0], W, H, 100.0).shape == (0,)
+    for bad in (float("inf"), float("nan"), -5.0, "x"):
+        with pytest.raises(ValueError, match="flicker frequency must be"):
+            FlickerFilter(W, H, bad)
+    with pytest.raises(ValueError, match="outside the 160x120 sensor"):
+        f.flags(np.array([1]), np.array([W]), np.array([0]))
+    with pytest.raises(ValueError, match="out of time order"):
+        f.flags(np.array([5, 3]), np.array([0, 0]), np.array([0, 0]))
+    # chunking does not change the answer; neither does a start 700 s in (past the stamps' wrap)
+    whole = flicker_mask(lamp, W, H, 100.0)
+    np.testing.assert_array_equal(flicker_mask(lamp, W, H, 100.0, chunk=7_777), whole)
+    late = lamp.copy()
+    late["t"] += 700_000_000
+    np.testing.assert_array_equal(flicker_mask(late, W, H, 100.0), whole)
+
+
+def test_the_wrong_frequency_flags_little(lamp):
+    assert flicker_mask(lamp, W, H, 120.0).mean() < 0.4
+
+
+def test_streaming_in_batches_equals_one_pass(lamp):
+    one = FlickerFilter(W, H, 100.0).flags(lamp["t"], lamp["x"], lamp["y"])
+    f = FlickerFilter(W, H, 100.0)
+    cuts = np.linspace(0, len(lamp), 7).astype(int)
+    parts = [f.flags(lamp["t"][a:b], lamp["x"][a:b], lamp["y"][a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
+    np.testing.assert_array_equal(np.concatenate(parts), one)
+
+
+def test_a_crossing_ball_is_kept():
+    rec = sim.flight("volleyball", rps=10.0, radius_px=20.0, width=320, height=240, duration_s=0.06,
+                     start_px=(30.0, 120.0), velocity_px_s=(4000.0, 0.0), gravity_px_s2=0.0, distractors=(),
+                     noise_rate_hz=0.0, hot_pixels=0, seed=3)
+    # a pixel the ball crosses in about one period can fire twice at one phase: few do
+    assert flicker_mask(rec.events, 320, 240, 100.0).mean() < 0.15
+
+
+def _recall(tr, rec):
+    truth = rec.truth_track(visible_only=True)
+    if not len(tr):
+        return 0.0
+    t = truth.t_us[(truth.t_us >= tr.t_us[0]) & (truth.t_us <= tr.t_us[-1])]
+    err = np.hypot(np.interp(t, tr.t_us, tr.cx) - np.interp(t, truth.t_us, truth.cx),
+                   np.interp(t, tr.t_us, tr.cy) - np.interp(t, truth.t_us, truth.cy))
+    covered = (tr.t_us[-1] - tr.t_us[0]) / max(truth.t_us[-1] - truth.t_us[0], 1)
+    return covered * float(np.mean(err < 3.0)) if len(t) else 0.0
+
+
+@pytest.fixture(scope="module")
+def lit_flight():
+    """A ball crossing a 640x480 view under a 100 Hz light over the middle-left quarter."""
+    w, h = 640, 480
+    return sim.flight("volleyball", rps=10.0, axis=(0.3, 1.0, 0.2), radius_px=25.0, width=w, height=h,
+                      duration_s=0.1, start_px=(40.0, 240.0), velocity_px_s=(2400.0, 0.0), gravity_px_s2=0.0,
+                      distractors=(), noise_rate_hz=0.5, hot_pixels=10, flicker_hz=100.0, flicker_depth=0.1,
+                      flicker_box=(0, h // 4, w // 2, 3 * h // 4), seed=12)
+
+
+def test_the_tracker_finds_the_ball_under_a_flickering_light_when_told_its_frequency(lit_flight):
+    rec = lit_flight
+    assert _recall(track_ball(rec.events, width=640, height=480), rec) < 0.9  # lost in the light's events
+    assert _recall(track_ball(rec.events, width=640, height=480, flicker_hz=100.0), rec) > 0.95
+
+
+def test_the_streaming_tracker_filters_too(lit_flight):
+    tracker = BallTracker(640, 480, flicker_hz=100.0)
+    for part in np.array_split(lit_flight.events, 10):
+        tracker.update(part)
+    track = tracker.finish()
+    assert _recall(track, lit_flight) > 0.85 and track.t_us[0] <= 15_000  # found once a period is seen
+    assert tracker._flicker.n_flagged > 0.3 * len(lit_flight.events)
+
+
+def test_bad_input_is_named_with_the_filter_on():
+    ev = np.zeros(3, EVENT_DTYPE)
+    ev["t"] = [5, 3, 9]
+    with pytest.raises(DetectInputError, match="out of time order"):
+        track_ball(ev, width=W, height=H, flicker_hz=100.0)
+    ev["t"] = [1, 2, 3]
+    ev["x"][1] = W
+    with pytest.raises(DetectInputError, match="outside the 160x120 sensor"):
+        track_ball(ev, width=W, height=H, flicker_hz=100.0)
+    with pytest.raises(ValueError, match="flicker frequency must be positive"):
+        FlickerFilter(W, H, 0.0)
+
+
+def test_replay_option_reaches_the_tracker():
+    from capture.replay import build_parser, spin_options
+
+    args = build_parser().parse_args(["s", "--flicker-hz", "120"])
+    assert spin_options(args).tracker == {"flicker_hz": 120.0}
+    assert spin_options(build_parser().parse_args(["s"])).tracker == {}
+    for bad in ("-1", "inf", "nan"):
+        with pytest.raises(ValueError, match="--flicker-hz must be a positive number of Hz"):
+            spin_options(build_parser().parse_args(["s", "--flicker-hz", bad]))
