@@ -17,6 +17,7 @@ The ``courtside`` console script (:mod:`capture.cli`) dispatches its subcommands
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 
@@ -95,6 +96,17 @@ def add_sensor_mode_args(ap: argparse.ArgumentParser) -> None:
                     help="event camera: output format (default EVT3; EVT21 takes about 4x the bandwidth)")
     ap.add_argument("--usb-transfers", type=positive_int, metavar="N",
                     help="event camera: USB requests kept in flight (default 64; 1 reads one at a time)")
+
+
+def frequency_hz(text: str) -> float:
+    """argparse type: a frequency in Hz, finite and > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a frequency in Hz, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of Hz, got {text}")
+    return value
 
 
 def positive_int(text: str) -> int:

@@ -9,11 +9,10 @@ A recording cut short (killed, crashed) is first completed from its RAW file
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
-from capture.cliargs import add_ball_args, ball_attr, box, positive_int, run_command
+from capture.cliargs import add_ball_args, ball_attr, box, frequency_hz, positive_int, run_command
 from capture.ingest import complete_cut_short, session_from_raw
 from capture.pipeline.replay import ReplayOptions, replay
 from capture.results import format_flight_table, session_results
@@ -31,15 +30,13 @@ def add_spin_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
-    ap.add_argument("--flicker-hz", type=float, metavar="HZ",
+    ap.add_argument("--flicker-hz", type=frequency_hz, metavar="HZ",
                     help="lights flickered at this frequency (100 on 50 Hz mains, 120 on 60 Hz) and the "
                          "sensor's anti-flicker was off: leave their events out of ball detection")
 
 
 def spin_options(args, **options) -> ReplayOptions:
     """:class:`ReplayOptions` from the arguments of :func:`add_spin_args` (and ``options``)."""
-    if args.flicker_hz is not None and not (math.isfinite(args.flicker_hz) and args.flicker_hz > 0):
-        raise ValueError(f"--flicker-hz must be a positive number of Hz, got {args.flicker_hz}")
     tracker = {"flicker_hz": args.flicker_hz} if args.flicker_hz else {}
     return ReplayOptions(window_us=args.window_us, max_window_us=args.max_window_us, step_us=args.step_us,
                          method=args.method, tracker=tracker, **options)

@@ -32,12 +32,13 @@ from capture.cliargs import (
     ball_attr,
     box,
     flicker_band,
+    frequency_hz,
     name_int,
     run_command,
 )
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
-from capture.pipeline.replay import REVIEW_NAME, ReplayResult, replay
+from capture.pipeline.replay import REVIEW_NAME, ReplayOptions, ReplayResult, replay
 from capture.results import format_flight_table, session_results
 
 PROG = "python -m capture.run"
@@ -79,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
                     help="sync-box LED region in GoPro pixels (default: found automatically)")
     add_ball_args(ap)
+    ap.add_argument("--flicker-hz", type=frequency_hz, metavar="HZ",
+                    help="lights flicker at this frequency (100 on 50 Hz mains, 120 on 60 Hz): leave their events "
+                         "out of ball detection, live and in the analysis (use --anti-flicker where the sensor has it)")
     ap.add_argument("--no-analysis", action="store_true", help="skip the offline analysis at the end")
     ap.add_argument("--quiet", action="store_true", help="no status line or progress bars")
     return ap
@@ -119,7 +123,8 @@ def _run(args, out: Path, stop: threading.Event) -> int:
         if not args.quiet:
             print("Analysing the session (detection, spin, Rerun recording)...", file=sys.stderr, flush=True)
         try:
-            analysis = replay(out, rrd_path=out / REVIEW_NAME, progress=not args.quiet)
+            options = ReplayOptions(tracker={"flicker_hz": args.flicker_hz} if args.flicker_hz else {})
+            analysis = replay(out, rrd_path=out / REVIEW_NAME, options=options, progress=not args.quiet)
         except Exception as exc:  # the recording is safe; say why the analysis did not finish
             result.messages.append(f"analysis failed ({type(exc).__name__}: {exc}); "
                                    f"retry with: python -m capture.replay {out}")
@@ -145,7 +150,7 @@ def _devices(args, out: Path):
     settings = RecordSettings(out=out, serial=args.serial, viewer=args.viewer, biases=biases_of(args.bias_file, args.bias),
                               roi=args.roi, crop=args.crop, erc_ev_s=args.erc, anti_flicker_hz=args.anti_flicker,
                               trail_filter=args.trail_filter, sync_mode=args.sync, event_format=args.event_format,
-                              usb_transfers=args.usb_transfers,
+                              usb_transfers=args.usb_transfers, flicker_hz=args.flicker_hz,
                               max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet,
                               attrs={"ball": ball} if ball else {})

@@ -143,6 +143,26 @@ def test_replay_option_reaches_the_tracker():
     args = build_parser().parse_args(["s", "--flicker-hz", "120"])
     assert spin_options(args).tracker == {"flicker_hz": 120.0}
     assert spin_options(build_parser().parse_args(["s"])).tracker == {}
-    for bad in ("-1", "inf", "nan"):
-        with pytest.raises(ValueError, match="--flicker-hz must be a positive number of Hz"):
-            spin_options(build_parser().parse_args(["s", "--flicker-hz", bad]))
+    for bad in ("-1", "inf", "nan", "x"):
+        with pytest.raises(SystemExit) as exit_:
+            build_parser().parse_args(["s", "--flicker-hz", bad])
+        assert exit_.value.code == 2  # a usage error, in one line
+
+
+def test_capture_run_passes_the_flicker_to_the_live_tracker_and_the_analysis(shared_raw_dir, tmp_path):
+    from capture.run import _devices, build_parser, main
+    from capture.session import open_session
+
+    src = shared_raw_dir / "ros_codecs_evt3_trigger_1280x720.raw"
+    args = build_parser().parse_args(["--fake", str(src), "--flicker-hz", "100"])
+    with _devices(args, tmp_path / "unused") as (settings, _):
+        assert settings.flicker_hz == 100.0
+    from capture.pipeline.live import LiveAnalysis
+
+    live = LiveAnalysis(1280, 720, flicker_hz=settings.flicker_hz)  # as record_session builds it
+    assert live.tracker._flicker.freq_hz == 100.0
+    live.close()
+    out = tmp_path / "s"
+    assert main(["--fake", str(src), "--out", str(out), "--viewer", "none", "--quiet", "--speed", "max",
+                 "--flicker-hz", "100"]) == 0
+    assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0}

@@ -64,6 +64,8 @@ class RecordSettings:
         ``EVT3`` or ``EVT21`` (None: EVT3).
     usb_transfers : int or None
         USB requests kept in flight on the data endpoint (None: ``Camera.n_transfers``).
+    flicker_hz : float or None
+        Lights flickering at this frequency: the live tracker leaves their events out.
     erc_ev_s : float or None
         Event-rate cap, ev/s.
     gopro : object or None
@@ -101,6 +103,7 @@ class RecordSettings:
     sync_mode: str | None = None
     event_format: str | None = None
     usb_transfers: int | None = None
+    flicker_hz: float | None = None
     trigger_in: bool = True
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)
@@ -252,7 +255,7 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
                 _log(settings, messages[-1])
             if review is not None and review.url:
                 _log(settings, f"Rerun viewer: {review.url}")
-        live = LiveAnalysis(info.width, info.height, review=review)
+        live = LiveAnalysis(info.width, info.height, review=review, flicker_hz=settings.flicker_hz)
 
         def _write_failed(exc: OSError) -> None:  # disk full or gone: stop; what cannot be stored gets marked
             if not write_error:
