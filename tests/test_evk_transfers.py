@@ -177,3 +177,106 @@ def test_a_backend_that_cannot_queue_falls_back_to_one_read(tmp_path, busy_strea
     assert stats.n_transfers == 1 and stats.lossless
     assert "cannot queue transfers" in caplog.text
     assert payload_of(tmp_path / "sync.raw") == payload_of(busy_stream)
+
+
+def test_an_unplug_with_requests_in_hand_keeps_every_byte_they_hold(tmp_path, busy_stream):
+    """Pulled out while requests are complete but not yet reaped (the resubmit fails): their
+    bytes are still written, and the recording says the camera went."""
+
+    class UnplugAfterThree(FakeEVK):
+        def bulk_in_queue(self, dev_handle, ep):
+            q = super().bulk_in_queue(dev_handle, ep)
+            reap, reaped = q.reap, []
+
+            def reap_then_unplug(timeout_s):
+                done = reap(timeout_s)
+                if done is not None and done.nbytes:
+                    reaped.append(done.nbytes)
+                    if len(reaped) == 3:  # the other requests are full by now (pace max)
+                        self.unplug()
+                return done
+
+            q.reap = reap_then_unplug
+            return q
+
+    fake = UnplugAfterThree(busy_stream, pace="max")
+    with evk.open(backend=fake) as cam:
+        with pytest.raises(evk.EvkDisconnectedError, match="bytes received before it are kept"):
+            evk.record(cam, tmp_path / "gone.raw")
+    assert fake.bytes_served > 10 * (128 << 10)  # many requests were in hand
+    assert payload_of(tmp_path / "gone.raw") == fake.served_payload()
+
+
+def test_libusb_queue_against_a_stub_libusb(monkeypatch):
+    """The libusb path (no camera here): real python-libusb1 structures and callbacks, a stub in
+    place of libusb's five calls that completes requests in order with the next bytes."""
+    import array
+    import ctypes
+    from collections import deque
+    from types import SimpleNamespace
+
+    import usb1.libusb1 as L
+
+    from capture.evk import transfers
+
+    class StubLibusb:
+        libusb_device_handle_p = L.libusb_device_handle_p
+        libusb_transfer_cb_fn_p = L.libusb_transfer_cb_fn_p
+        LIBUSB_TRANSFER_TYPE_BULK = L.LIBUSB_TRANSFER_TYPE_BULK
+        timeval = L.timeval
+
+        def __init__(self):
+            self.queued, self.cancelled, self.allocated, self.freed = deque(), set(), [], 0
+            self.chunks = deque([b"first.", b"second", b"third!!"])
+
+        def libusb_alloc_transfer(self, n_iso):
+            t = ctypes.pointer(L.libusb_transfer())
+            self.allocated.append(t)
+            return t
+
+        def libusb_submit_transfer(self, t):
+            assert t.contents.endpoint == 0x81 and t.contents.type == L.LIBUSB_TRANSFER_TYPE_BULK
+            self.queued.append(t)
+            return 0
+
+        def libusb_cancel_transfer(self, t):
+            self.cancelled.add(ctypes.addressof(t.contents))
+            return 0
+
+        def libusb_handle_events_timeout_completed(self, ctx, tv, completed):
+            if not self.queued:
+                return 0
+            t = self.queued[0]
+            c = t.contents
+            if ctypes.addressof(c) in self.cancelled:
+                data, c.status = b"part", 3  # LIBUSB_TRANSFER_CANCELLED, with what had arrived
+            elif self.chunks:
+                data, c.status = self.chunks.popleft(), 0
+            else:
+                return 0  # nothing arrives
+            self.queued.popleft()
+            ctypes.memmove(c.buffer, data, len(data))
+            c.actual_length = len(data)
+            c.callback(t)  # libusb calls back from within the event handling
+            return 0
+
+        def libusb_free_transfer(self, t):
+            self.freed += 1
+
+    stub = StubLibusb()
+    monkeypatch.setattr(transfers, "_bindings", lambda lib: stub)
+    q = transfers.LibusbQueue(SimpleNamespace(lib=None, ctx=ctypes.c_void_p(0x1000)),
+                              SimpleNamespace(handle=ctypes.c_void_p(0x2000)), 0x81)
+    bufs = [array.array("B", bytes(16)) for _ in range(4)]
+    for b in bufs:
+        q.submit(b, 100)
+    got = [q.reap(1.0) for _ in range(3)]
+    assert [d.buffer is b for d, b in zip(got, bufs)] == [True] * 3  # in submission order
+    assert [bytes(d.buffer[:d.nbytes]) for d in got] == [b"first.", b"second", b"third!!"]
+    assert [d.status for d in got] == ["completed"] * 3
+    assert q.reap(0.05) is None and q.pending == 1  # nothing more arrived
+    q.cancel()
+    done = q.reap(1.0)
+    assert done.status == "cancelled" and bytes(done.buffer[:done.nbytes]) == b"part" and q.pending == 0
+    q.close()
+    assert stub.freed == len(stub.allocated) == 4  # a reaped transfer is reused or freed, never leaked

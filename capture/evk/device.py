@@ -323,7 +323,9 @@ class Camera:
     """Bulk-IN requests kept in flight on the data endpoint; 1 reads synchronously, one request
     at a time. The HAL keeps 20 and neuromorphic-drivers 32, in code that never waits for a
     GIL; 64 × 128 KiB = 8 MiB covers 28 ms at 300 MB/s (100 Mev/s of EVT3) while Python is
-    busy elsewhere, and stays within Linux's default usbfs budget of 16 MiB for all devices."""
+    busy elsewhere. Linux's usbfs lends 16 MiB by default to all devices together: a second
+    camera gets fewer requests (with a warning) unless each is given ``n_transfers = 32`` or
+    ``/sys/module/usbcore/parameters/usbfs_memory_mb`` is raised."""
     transfer_bytes = 128 << 10
     """Size of each queued request (HAL value; a multiple of wMaxPacketSize)."""
     read_bytes = 1 << 20
@@ -694,7 +696,7 @@ class Camera:
             except EvkError as exc:
                 log.warning("%s: destroy sequence failed: %s", self._usb.where, exc)
         finally:
-            if self.reader is not None and self.reader.is_alive():
+            if self.reader is not None and (self.reader.is_alive() or self.reader.abandoned):
                 # requests may still be pending in libusb: closing the handle under them could
                 # let the host write into freed memory; the process keeps the handle instead
                 log.error("%s: the USB reader did not stop; the device stays claimed until this "

@@ -169,7 +169,6 @@ class DataSide:
         self.served = 0  # bytes delivered to the host
         self.served_ranges: list[list[int]] = []  # [start, end) payload ranges delivered, in order
         self.dropped_bytes = 0  # bytes the FIFO could not hold
-        self.n_overflows = 0
         self.produced = 0  # payload offset the sensor has reached
         self._fifo: deque = deque()  # [start, end) payload ranges waiting in the device
         self._level = 0
@@ -267,7 +266,6 @@ class DataSide:
         """Lose the newest ``excess`` bytes (rounded up to a word), then up to the next
         TIME_HIGH word."""
         excess = -(-excess // self.word) * self.word
-        self.n_overflows += 1
         while excess > 0 and self._fifo:
             rng = self._fifo[-1]
             n = min(excess, rng[1] - rng[0])

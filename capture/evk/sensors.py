@@ -336,8 +336,9 @@ class Imx636:
         if kind is not None and kind not in s.STC_KINDS:
             raise ValueError(f"trail filter kind must be one of {', '.join(s.STC_KINDS)}, got {kind!r}")
         ms = math.floor(threshold_us / 1000.0 + 0.5)  # C's roundf: halves away from zero, as the HAL
-        if kind is not None and not (1000 <= threshold_us <= 100_000):
-            raise ValueError(f"trail filter threshold {threshold_us} µs is outside 1000..100000 µs")
+        low, high = s.STC_THRESHOLD_US
+        if kind is not None and not (low <= threshold_us <= high):
+            raise ValueError(f"trail filter threshold {threshold_us} µs is outside {low}..{high} µs")
         self.run((("W", s.STC_PIPELINE_CONTROL, 0b101),))
         self.trail_filter = None
         if kind is None:

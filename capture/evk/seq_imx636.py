@@ -266,7 +266,7 @@ TRAIL_PARAM = 0xD008  # trail_enable [0], trail_threshold [19:1] (µs)
 STC_TIMESTAMPING = 0xD00C  # prescaler [4:0], multiplier [8:5], enable_last_ts_update_at_every_event [16]
 STC_INVALIDATION = 0xD0C0  # dt_fifo_timeout [23:12]
 STC_INITIALIZATION = 0xD0C4  # stc_req_init [0], stc_flag_init_done [2] (write 1 to clear)
-STC_THRESHOLD_MS = (1, 100)
+STC_THRESHOLD_US = (1_000, 100_000)  # the HAL's range, whole ms
 STC_KINDS = ("trail", "stc_cut", "stc_keep")
 """``trail``: keep the first event of a burst of one polarity; ``stc_cut``: after a polarity
 change drop the first event and the trail, keep the second; ``stc_keep``: drop the first event,

@@ -180,6 +180,8 @@ class Reader(threading.Thread):
         self.max_gap_s = 0.0
         self.transfers = transfers
         self.n_transfers = int(n_transfers) if transfers is not None else 1
+        self.abandoned = False
+        """Requests never came back after a cancel: the device handle must stay open."""
         self._free: deque = deque()
         self._n_buffers = 0
         # queued chunks hold at least half a buffer each (smaller ones are copied out)
@@ -235,14 +237,10 @@ class Reader(threading.Thread):
                 return False
         elif by_reference and self.queue.put(Chunk(buf, n)):
             return True
-        self._lose(n)
-        return False
-
-    def _lose(self, n: int) -> None:
-        """``n`` bytes read cannot be kept: counted, and marked in the queue by a :class:`Gap`."""
         self.dropped_bytes += n
         self.n_overflows += 1
         self.queue.put_gap(n)
+        return False
 
     def _run_queued(self) -> None:
         q, queue, eos, clock = self.transfers, self.queue, self._eos, time.perf_counter
@@ -250,9 +248,11 @@ class Reader(threading.Thread):
         cancel_by = None  # clock time by which every cancelled request must be back
         try:
             for i in range(self.n_transfers):  # HAL: first timeouts staggered over one period
+                buf = self._buffer()
                 try:
-                    q.submit(self._buffer(), self.timeout_ms + i * self.timeout_ms // self.n_transfers)
+                    q.submit(buf, self.timeout_ms + i * self.timeout_ms // self.n_transfers)
                 except usb.core.USBError as exc:
+                    self._free.append(buf)
                     if i == 0 or exc.errno != errno.ENOMEM:
                         raise
                     log.warning("%s: only %d of %d USB requests could be queued (%s; Linux shares 16 MiB of "
@@ -266,7 +266,12 @@ class Reader(threading.Thread):
                 if cancel_by is not None and clock() > cancel_by:
                     raise EvkError(f"{q.pending} USB requests of {self.camera_name} still pending "
                                    f"{CANCEL_WAIT_S:.0f} s after they were cancelled")
-                done: Done | None = q.reap(0.05)
+                try:
+                    done: Done | None = q.reap(0.05)
+                except usb.core.USBError as exc:  # no more completions can be had
+                    if self.error is None:
+                        self.error = usb_error(exc, where)
+                    break
                 if done is None:
                     continue
                 buf, n, status = done
@@ -274,9 +279,7 @@ class Reader(threading.Thread):
                 if n or status == "completed":
                     self.n_reads += 1
                 spare = buf
-                if n and status in ("overflow", "error"):  # the device sent more than asked: not data
-                    self._lose(n)
-                elif n:
+                if n:  # whatever the status, the first n bytes arrived (libusb): keep them
                     spare = self._buffer()
                     if spare is None:  # every pooled buffer is queued: keep buf for the next request
                         self._hand_over(buf, n, by_reference=False)
@@ -294,7 +297,14 @@ class Reader(threading.Thread):
                         self.error = usb_error(_status_error(status), where)
                     self._stop_event.set()
                 if not self._stop_event.is_set():
-                    q.submit(spare, self.timeout_ms)
+                    try:
+                        q.submit(spare, self.timeout_ms)
+                    except usb.core.USBError as exc:  # (unplugged): stop, but reap what is in hand
+                        if self.error is None:
+                            self.error = usb_error(exc, where)
+                        self._stop_event.set()
+                        self._free.append(spare)
+                        continue
                     gap = clock() - t_done
                     self.gap_s += gap
                     self.max_gap_s = max(self.max_gap_s, gap)
@@ -313,6 +323,7 @@ class Reader(threading.Thread):
                 q.close()
             except Exception as exc:  # noqa: BLE001 - requests still pending: never free their memory
                 _ABANDONED.append(q)
+                self.abandoned = True
                 if self.error is None:
                     self.error = EvkError(f"closing the USB requests of {self.camera_name} failed: {exc!r}")
             queue.close()
@@ -366,7 +377,7 @@ class Reader(threading.Thread):
 
 def _status_error(status: str) -> usb.core.USBError:
     """The pyusb error matching a failed transfer's libusb status."""
-    code = {"stall": errno.EPIPE, "no_device": errno.ENODEV, "timed_out": errno.ETIMEDOUT}.get(status, errno.EIO)
+    code = {"stall": errno.EPIPE, "no_device": errno.ENODEV}.get(status, errno.EIO)
     return usb.core.USBError(f"bulk transfer ended with status {status}", None, code)
 
 
