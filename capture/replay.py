@@ -32,7 +32,8 @@ def add_spin_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
     ap.add_argument("--flicker-hz", type=frequency_hz, metavar="HZ",
                     help="lights flickered at this frequency (100 on 50 Hz mains, 120 on 60 Hz) and the "
-                         "sensor's anti-flicker was off: leave their events out of ball detection")
+                         "sensor's anti-flicker was off: leave their events out of ball detection "
+                         "(replay: default, what capture.run --flicker-hz stored)")
 
 
 def spin_options(args, **options) -> ReplayOptions:
@@ -89,6 +90,11 @@ def _run(args) -> None:
     if damage:
         print(f"note: {session_path}: {damage}", file=sys.stderr)
     opts = spin_options(args, workers=args.workers)
+    recorded_flicker = open_session(session_path).attrs.get("flicker_hz")
+    if args.flicker_hz is None and recorded_flicker:  # the recording was made under flickering lights
+        opts.tracker = {"flicker_hz": float(recorded_flicker)}
+        print(f"note: {session_path}: recorded with --flicker-hz {recorded_flicker}: detection leaves "
+              "that light's events out", file=sys.stderr)
     result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     n_flights = len(result.track.flight_ids())
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "

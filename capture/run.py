@@ -153,7 +153,8 @@ def _devices(args, out: Path):
                               usb_transfers=args.usb_transfers, flicker_hz=args.flicker_hz,
                               max_duration_s=args.duration,
                               exposure_s=args.exposure, led_roi=args.led_roi, quiet=args.quiet,
-                              attrs={"ball": ball} if ball else {})
+                              attrs={**({"ball": ball} if ball else {}),
+                                     **({"flicker_hz": args.flicker_hz} if args.flicker_hz else {})})
     if args.fake:
         from capture.evk.fake import FakeEVK
 

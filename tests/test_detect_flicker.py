@@ -165,4 +165,11 @@ def test_capture_run_passes_the_flicker_to_the_live_tracker_and_the_analysis(sha
     out = tmp_path / "s"
     assert main(["--fake", str(src), "--out", str(out), "--viewer", "none", "--quiet", "--speed", "max",
                  "--flicker-hz", "100"]) == 0
+    s = open_session(out)
+    assert s.attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0} and s.attrs["flicker_hz"] == 100.0
+    from capture.replay import main as replay_main
+
+    assert replay_main([str(out), "--quiet", "--flicker-hz", "120"]) == 0  # told another
+    assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 120.0}
+    assert replay_main([str(out), "--quiet"]) == 0  # not told: the recording's frequency
     assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0}
