@@ -82,6 +82,7 @@ def reader_throughput(src: Path, read_bytes: int, packet_bytes) -> tuple[float, 
     fake = FakeEVK(src, packet_bytes=packet_bytes)
     with evk.open(backend=fake) as cam:
         cam.read_bytes = read_bytes
+        cam.n_transfers = 1  # the one-read path this part measures
         cam.queue_bytes = 1 << 34
         t = time.perf_counter()
         cam.start()
