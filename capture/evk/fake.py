@@ -668,8 +668,7 @@ class FakeQueue:
     def submit(self, buffer, timeout_ms: int) -> None:
         fake = self._fake
         with fake._lock:
-            if fake._gone:
-                raise _usb_error(-4, errno.ENODEV, "No such device (it may have been disconnected)")
+            fake._check_present()
             in_use = sum(r.size for r in fake._data.requests)
             if fake.usbfs_bytes is not None and in_use + len(buffer) > fake.usbfs_bytes:
                 raise _usb_error(-11, errno.ENOMEM, "Insufficient memory")
@@ -679,21 +678,14 @@ class FakeQueue:
     def reap(self, timeout_s: float) -> Done | None:
         if not self._order:
             return None
-        fake, side = self._fake, self._fake._data
+        fake = self._fake
         req, buffer = self._order[0]
-        deadline = time.monotonic() + timeout_s
-        while True:
-            with fake._lock:
-                now = time.monotonic()
-                side.advance(now, fake._running())
-                if req.status is not None:
-                    side.requests.remove(req)
-                    self._order.popleft()
-                    return Done(buffer, req.got, req.status)
-                wake = side.next_wake(now)
-            if now >= deadline:
-                return None
-            time.sleep(min(wake, max(deadline - now, 0.0)))
+        if not wait_for(fake._data, req, fake._running, fake._lock, time.monotonic() + timeout_s):
+            return None
+        with fake._lock:
+            fake._data.requests.remove(req)
+        self._order.popleft()
+        return Done(buffer, req.got, req.status)
 
     def cancel(self) -> None:
         with self._fake._lock:

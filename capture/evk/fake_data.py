@@ -295,7 +295,7 @@ class DataSide:
         ends, short, payload = self._ends, self._short, self.payload
         pending = [r for r in self.requests if r.status is None]
         i = 0
-        while budget >= 1 and self._fifo and i < len(pending) and not (self.stalled or self.gone):
+        while budget >= 1 and self._fifo and i < len(pending):  # (a fault breaks out)
             req = pending[i]
             rng = self._fifo[0]
             s = rng[0]
@@ -343,13 +343,18 @@ class DataSide:
         return self.stalled or self.gone
 
 
-def wait_for(side: DataSide, req: Request, running, lock) -> None:
-    """Block (releasing the GIL, as a thread inside libusb) until ``req`` completes."""
+def wait_for(side: DataSide, req: Request, running, lock, deadline: float | None = None) -> bool:
+    """Block (releasing the GIL, as a thread inside libusb) until ``req`` completes, or until
+    ``deadline`` (``time.monotonic`` seconds) passes; True if it completed."""
     while True:
         with lock:
             now = time.monotonic()
             side.advance(now, running())
             if req.status is not None:
-                return
+                return True
             wake = side.next_wake(now)
+        if deadline is not None:
+            if now >= deadline:
+                return False
+            wake = min(wake, max(deadline - now, 0.0))
         time.sleep(wake)

@@ -253,11 +253,13 @@ class Reader(threading.Thread):
                     q.submit(buf, self.timeout_ms + i * self.timeout_ms // self.n_transfers)
                 except usb.core.USBError as exc:
                     self._free.append(buf)
-                    if i == 0 or exc.errno != errno.ENOMEM:
-                        raise
-                    log.warning("%s: only %d of %d USB requests could be queued (%s; Linux shares 16 MiB of "
-                                "usbfs memory between all devices)", self.camera_name, i, self.n_transfers, exc)
-                    self.n_transfers = i
+                    if i and exc.errno == errno.ENOMEM:
+                        log.warning("%s: only %d of %d USB requests could be queued (%s; Linux shares 16 MiB "
+                                    "of usbfs memory between all devices)", self.camera_name, i, self.n_transfers, exc)
+                        self.n_transfers = i
+                    else:  # (unplugged): stop, but reap what the requests already queued hold
+                        self.error = usb_error(exc, where)
+                        self._stop_event.set()
                     break
             while q.pending:
                 if self._stop_event.is_set() and cancel_by is None:
