@@ -468,9 +468,7 @@ class Camera:
         EvkError
             On a sensor without a digital crop (Gen3.1).
         """
-        if not hasattr(self.sensor, "set_crop"):
-            raise EvkError(f"the {self.sensor.name} has no digital crop")
-        self.sensor.set_crop(x, y, width, height)
+        self._sensor("set_crop", "has no digital crop")(x, y, width, height)
 
     def set_erc(self, max_event_rate_ev_s: float | None) -> None:
         """Cap the sensor's event rate (events/s) with its event rate controller; ``None``
@@ -486,9 +484,7 @@ class Camera:
         EvkError
             On a sensor without it (Gen3.1).
         """
-        if not hasattr(self.sensor, "set_anti_flicker"):
-            raise EvkError(f"the {self.sensor.name} has no anti-flicker block")
-        self.sensor.set_anti_flicker(band_hz)
+        self._sensor("set_anti_flicker", "has no anti-flicker block")(band_hz)
 
     def erc_status(self) -> tuple[bool, float]:
         """``(enabled, cap in events/s)`` of the event rate controller, read back from the
@@ -499,10 +495,7 @@ class Camera:
         EvkError
             On a sensor without one (Gen3.1).
         """
-        read = getattr(self.sensor, "erc_status", None)
-        if read is None:
-            raise EvkError(f"the {self.sensor.name} has no event rate controller")
-        return read()
+        return self._sensor("erc_status", "has no event rate controller")()
 
     def set_trail_filter(self, kind: str | None, threshold_us: int = 10_000) -> None:
         """Filter event bursts and noise in the sensor (IMX636): ``kind`` ``"trail"`` (keep the
@@ -519,7 +512,7 @@ class Camera:
             On a sensor this driver does not filter on (Gen3.1, Gen4.1), or when the block does
             not report its initialisation.
         """
-        self._imx636_only("set_trail_filter", "trail filter")(kind, threshold_us)
+        self._sensor("set_trail_filter", "has no trail filter in this driver (IMX636 only)")(kind, threshold_us)
 
     def set_sync_mode(self, mode: str) -> None:
         """Share one time base between cameras wired by their SYNC connectors (IMX636):
@@ -533,11 +526,10 @@ class Camera:
         EvkError
             While streaming, or on a sensor this driver does not synchronise (Gen3.1, Gen4.1).
         """
-        if self._streaming:
-            raise EvkError(f"{self._usb.where}: the sync mode can only change while not streaming")
+        self._not_streaming("the sync mode")
         if mode == "standalone" and getattr(self.sensor, "set_sync_mode", None) is None:
             return  # what every sensor is at open
-        self._imx636_only("set_sync_mode", "synchronisation")(mode)
+        self._sensor("set_sync_mode", "has no synchronisation in this driver (IMX636 only)")(mode)
 
     def set_event_format(self, fmt: str) -> None:
         """Select the sensor's output format (IMX636): ``"EVT3"`` (default, about 2 bytes per
@@ -551,11 +543,10 @@ class Camera:
         EvkError
             While streaming, or on a sensor this driver keeps in EVT3 (Gen3.1, Gen4.1).
         """
-        if self._streaming:
-            raise EvkError(f"{self._usb.where}: the event format can only change while not streaming")
+        self._not_streaming("the event format")
         if fmt == self.info.format and getattr(self.sensor, "set_event_format", None) is None:
             return  # the format it streams already
-        self._imx636_only("set_event_format", "format selection")(fmt)
+        self._sensor("set_event_format", "has no format selection in this driver (IMX636 only)")(fmt)
         self.info.format = self.sensor.event_format()
 
     @property
@@ -568,11 +559,17 @@ class Camera:
         """``"standalone"``, ``"master"`` or ``"slave"``, as last set (standalone at open)."""
         return getattr(self.sensor, "sync_mode", "standalone")
 
-    def _imx636_only(self, method: str, what: str):
+    def _sensor(self, method: str, lacks: str):
+        """The sensor driver's ``method``; :class:`EvkError` "the <sensor> <lacks>" where it has
+        none (an attribute set to None: the sensor has it, this driver does not drive it)."""
         fn = getattr(self.sensor, method, None)
         if fn is None:
-            raise EvkError(f"the {self.sensor.name} has no {what} in this driver (IMX636 only)")
+            raise EvkError(f"the {self.sensor.name} {lacks}")
         return fn
+
+    def _not_streaming(self, what: str) -> None:
+        if self._streaming:
+            raise EvkError(f"{self._usb.where}: {what} can only change while not streaming")
 
     def temperature_c(self) -> float:
         """The sensor's die temperature, °C (IMX636 / EVK4; its ADC's resolution is 0.19 °C).
@@ -583,10 +580,7 @@ class Camera:
             On a sensor the HAL reads no temperature from (Gen3.1, Gen4.1 on an EVK3), or when
             the ADC reports no conversion.
         """
-        read = getattr(self.sensor, "temperature_c", None)
-        if read is None:
-            raise EvkError(f"the {self.sensor.name} reports no temperature")
-        return read()
+        return self._sensor("temperature_c", "reports no temperature")()
 
     def illuminance_lux(self) -> float:
         """The light level on the sensor, lux (IMX636 / EVK4: the HAL's conversion of its LIFO
@@ -598,10 +592,7 @@ class Camera:
             On a sensor the HAL reads no light level from (Gen3.1, Gen4.1 on an EVK3), or when
             the counter gives none.
         """
-        read = getattr(self.sensor, "illuminance_lux", None)
-        if read is None:
-            raise EvkError(f"the {self.sensor.name} reports no light level")
-        return read()
+        return self._sensor("illuminance_lux", "reports no light level")()
 
     def set_activity_filter(self, min_event_rate_ev_s: float | None) -> None:
         """Gen3.1 only: drop events while the rate is below ``min_event_rate_ev_s`` (its NFL);
@@ -612,9 +603,7 @@ class Camera:
         EvkError
             On a sensor without this filter.
         """
-        if not hasattr(self.sensor, "set_activity_filter"):
-            raise EvkError(f"the {self.sensor.name} has no event-rate activity filter")
-        self.sensor.set_activity_filter(min_event_rate_ev_s)
+        self._sensor("set_activity_filter", "has no event-rate activity filter")(min_event_rate_ev_s)
 
     def enable_trigger_in(self, enabled: bool = True, channel: int = 0) -> None:
         """Enable (or disable) the external trigger input; edges arrive as trigger events."""
