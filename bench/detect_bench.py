@@ -21,11 +21,13 @@ The rows:
   kev/s, 0.6 s), realistic pixel (latency, refractory period, leak and shot noise);
 * ``flicker``: a 100 Hz light flickering over a quarter of the sensor (the area the
   ball crosses) on top of the usual scene; the tracker is told the frequency (``flicker_hz``,
-  as a user who knows the hall's mains would; ``--no-flicker-hz`` withholds it);
+  as a user who knows the hall's mains would; ``--no-flicker-hz`` withholds it;
+  ``--auto-flicker-hz`` lets the tracker find it on every row, ``flicker_hz="auto"``);
 * ``still``: a nearly still spinning ball (0.3 m/s); ``bounce``: a ball hit back mid-view
-  (two flights); ``two-balls``: a second ball crossing the view.
+  (two flights); ``two-balls``: a second ball crossing the view the other way (both are to be
+  tracked, as separate flights: recall counts the samples of both).
 
-Per row: recall (truth samples every 1 ms while the ball is fully on the sensor at which
+Per row: recall (truth samples every 1 ms while a ball is fully on the sensor at which
 the track - interpolated within a flight between rows at most 50 ms apart, as
 ``detect.spin_windows`` reads it - puts the centre within ``max(2 px, 0.25 r)``), centre and
 radius error of the rows (median, 95th percentile, px), false updates per second (rows farther
@@ -187,8 +189,9 @@ def silhouette_circle(cx, cy, r, focal_px, principal_px):
 
 
 def evaluate(tr, rec):
-    """Errors of track ``tr`` against the recording's true circle (and any other ball's); through a
-    pinhole lens the true circle is the silhouette's (:func:`silhouette_circle`)."""
+    """Errors of track ``tr`` against the recording's true circle and every other ball's (each ball
+    is to be tracked, as a flight of its own); through a pinhole lens the true circle is the
+    silhouette's (:func:`silhouette_circle`)."""
     truth = rec.truth_track(visible_only=False)
     pinhole = rec.truth.get("projection") == "pinhole"
 
@@ -196,37 +199,39 @@ def evaluate(tr, rec):
         c = [np.interp(t_us, truth.t_us, getattr(truth, k)) for k in ("cx", "cy", "r")]
         return list(silhouette_circle(*c, rec.truth["focal_px"], rec.truth["principal_px"])) if pinhole else c
 
+    balls = [at, *_other_balls(rec)]
     tol = lambda r: np.maximum(2.0, 0.25 * r)  # noqa: E731
-    samples = np.arange(int(rec.events["t"][0]) + 1000, int(rec.events["t"][-1]) - 1000, 1000)
-    cx, cy, r = at(samples)
-    inside = (cx - r >= 0) & (cy - r >= 0) & (cx + r <= rec.width - 1) & (cy + r <= rec.height - 1)
-    samples = samples[inside]
-    out = dict(err=np.zeros(0), rerr=np.zeros(0), hit=np.zeros(len(samples), bool), false=0)
+    out = dict(err=np.zeros(0), rerr=np.zeros(0), hit=np.zeros(0, bool), false=0)
     tr = tr.select((tr.t_us >= truth.t_us[0]) & (tr.t_us <= truth.t_us[-1]))
-    if len(tr) == 0:
-        return out
-    cx, cy, r = at(tr.t_us)
-    err = np.hypot(tr.cx - cx, tr.cy - cy)
-    good = err <= tol(r)
-    other = np.zeros(len(tr), bool)
-    for circ in _other_balls(rec):
-        ox, oy, orr = circ(tr.t_us)
-        other |= np.hypot(tr.cx - ox, tr.cy - oy) <= tol(orr)
-    out["false"] = int((~good & ~other).sum())
-    out["err"], out["rerr"] = err[good], np.abs(tr.r - r)[good]
-    if not len(samples):
-        return out
-    cx, cy, r = at(samples)
-    hit = np.zeros(len(samples), bool)
-    for f in tr.flight_ids():
-        fl = tr.select(tr.flight == f)
-        j = np.searchsorted(fl.t_us, samples, side="right")
-        ok = (j > 0) & (j < len(fl))
-        ok[ok] &= (fl.t_us[j[ok]] - fl.t_us[j[ok] - 1]) <= 50_000
-        ok |= np.isin(samples, fl.t_us)
-        px, py = np.interp(samples, fl.t_us, fl.cx), np.interp(samples, fl.t_us, fl.cy)
-        hit |= ok & (np.hypot(px - cx, py - cy) <= tol(r))
-    out["hit"] = hit
+    if len(tr):  # each row is on the first ball it lies within tolerance of, or false
+        on_ball = np.zeros(len(tr), bool)
+        err, rerr = [], []
+        for ball in balls:
+            cx, cy, r = ball(tr.t_us)
+            e = np.hypot(tr.cx - cx, tr.cy - cy)
+            ok = (e <= tol(r)) & ~on_ball
+            err.append(e[ok])
+            rerr.append(np.abs(tr.r - r)[ok])
+            on_ball |= ok
+        out.update(err=np.concatenate(err), rerr=np.concatenate(rerr), false=int((~on_ball).sum()))
+    hits = []
+    for ball in balls:  # samples every 1 ms with the ball fully on the sensor
+        samples = np.arange(int(rec.events["t"][0]) + 1000, int(rec.events["t"][-1]) - 1000, 1000)
+        cx, cy, r = ball(samples)
+        inside = (cx - r >= 0) & (cy - r >= 0) & (cx + r <= rec.width - 1) & (cy + r <= rec.height - 1)
+        samples = samples[inside]
+        cx, cy, r = ball(samples)
+        hit = np.zeros(len(samples), bool)
+        for f in tr.flight_ids():
+            fl = tr.select(tr.flight == f)
+            j = np.searchsorted(fl.t_us, samples, side="right")
+            ok = (j > 0) & (j < len(fl))
+            ok[ok] &= (fl.t_us[j[ok]] - fl.t_us[j[ok] - 1]) <= 50_000
+            ok |= np.isin(samples, fl.t_us)
+            px, py = np.interp(samples, fl.t_us, fl.cx), np.interp(samples, fl.t_us, fl.cy)
+            hit |= ok & (np.hypot(px - cx, py - cy) <= tol(r))
+        hits.append(hit)
+    out["hit"] = np.concatenate(hits)
     return out
 
 
@@ -235,7 +240,7 @@ def _fmt(a, f=np.median, scale=1.0, fmt="{:6.2f}"):
     return fmt.format(scale * f(a)) if len(a) else "     -"
 
 
-def run_row(name, seeds, quick, tell_flicker=True):
+def run_row(name, seeds, quick, tell_flicker=True, auto_flicker=False):
     """Track every seed of row ``name``; pooled results."""
     res = []
     for seed in seeds:
@@ -243,7 +248,8 @@ def run_row(name, seeds, quick, tell_flicker=True):
         t0 = time.process_time()
         flicker = rec.truth.get("flicker") if tell_flicker else None  # a user who knows the mains tells it
         tr = track_ball(rec.events, width=rec.width, height=rec.height, frames=rec.frames,
-                        frame_times_us=rec.frame_times_us, flicker_hz=flicker["freq_hz"] if flicker else None)
+                        frame_times_us=rec.frame_times_us,
+                        flicker_hz="auto" if auto_flicker else flicker["freq_hz"] if flicker else None)
         t_track = time.process_time() - t0
         r = evaluate(tr, rec)
         r.update(n_events=len(rec.events), span_s=dur, t_track=t_track, n_flights=len(tr.flight_ids()))
@@ -270,6 +276,8 @@ def main(argv=None):
     ap.add_argument("--rows", default=",".join(ROWS), help="comma-separated rows (default: all)")
     ap.add_argument("--held-out-only", action="store_true", help="skip the tuning seeds")
     ap.add_argument("--no-flicker-hz", action="store_true", help="do not tell the tracker the flicker frequency")
+    ap.add_argument("--auto-flicker-hz", action="store_true",
+                    help="on every row, let the tracker find the flicker frequency itself (flicker_hz='auto')")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)  # one core: speeds are CPU time of this process
     rows = [r for r in args.rows.split(",") if r]
@@ -281,7 +289,7 @@ def main(argv=None):
             continue
         allp = []
         for name in rows:
-            p = run_row(name, seeds, args.quick, tell_flicker=not args.no_flicker_hz)
+            p = run_row(name, seeds, args.quick, tell_flicker=not args.no_flicker_hz, auto_flicker=args.auto_flicker_hz)
             print_row(f"{name} ({split})", p)
             allp.append((name, p))
         hits = np.concatenate([p["hit"] for _, p in allp])

@@ -109,6 +109,12 @@ def frequency_hz(text: str) -> float:
     return value
 
 
+def flicker_hz(text: str) -> float | str:
+    """argparse type: a light's flicker frequency in Hz (finite and > 0), or ``auto`` (found in the
+    events: ``detect.BallTracker``'s ``flicker_hz="auto"``)."""
+    return "auto" if text.strip().lower() == "auto" else frequency_hz(text)
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer > 0."""
     try:

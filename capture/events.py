@@ -172,11 +172,13 @@ SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
     "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
     "confidence": ("<f4", ()), "axis_sigma_deg": ("<f4", ()), "rps_sigma_pct": ("<f4", ()),
-    "rps_lag_pct": ("<f4", ())}
+    "rps_lag_pct": ("<f4", ()), "flight": ("<i4", ())}
 """Spin estimates: window µs (end exclusive), unit axis in the camera frame, rad/s, rev/s,
 centre velocity px/s, confidence 0..1, uncertainty (1 sigma) of the axis in degrees and of the
 rate in %, and the part of the latter from the sensor's lag in % (a bias the windows of a flight
-share; NaN where not measured, e.g. sessions written before these columns existed)."""
+share; NaN where not measured, e.g. sessions written before these columns existed), and the flight
+number of the window (the track's: two balls in view at once give windows of two flights at the
+same time; -1 where not known: the flight is then the one whose track rows span the window)."""
 
 
 def empty_table(columns: Mapping[str, tuple[str, tuple]], n: int = 0) -> dict[str, np.ndarray]:
@@ -207,14 +209,14 @@ def spin_table(spin) -> dict[str, np.ndarray]:
         named in :data:`SPIN_COLUMNS` (e.g. ``spin.SpinEstimate``).
 
     The uncertainty columns (``axis_sigma_deg``, ``rps_sigma_pct``, ``rps_lag_pct``) may be missing:
-    they are then NaN (not measured).
+    they are then NaN (not measured); so may ``flight``: it is then -1 (not known).
 
     Raises
     ------
     KeyError
         A column other than the uncertainties is missing.
     """
-    optional = ("axis_sigma_deg", "rps_sigma_pct", "rps_lag_pct")
+    optional = {"axis_sigma_deg": np.nan, "rps_sigma_pct": np.nan, "rps_lag_pct": np.nan, "flight": -1}
     if isinstance(spin, Mapping):
         rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS if k in spin or k not in optional}
     else:
@@ -222,8 +224,8 @@ def spin_table(spin) -> dict[str, np.ndarray]:
         rows = {k: [getattr(s, k) for s in items] for k in SPIN_COLUMNS
                 if k not in optional or all(hasattr(s, k) for s in items)}
     n = len(rows["t_start_us"])
-    for k in optional:
-        rows.setdefault(k, np.full(n, np.nan))
+    for k, missing in optional.items():
+        rows.setdefault(k, np.full(n, missing))
     return {k: np.asarray(rows[k], dtype=dtype).reshape(n, *shape) for k, (dtype, shape) in SPIN_COLUMNS.items()}
 
 
@@ -327,9 +329,10 @@ class Track:
                     float(rows.r[i]), float(rows.vx[i]), float(rows.vy[i]))
         return tuple(float(np.interp(t_us, t, getattr(rows, c))) for c in ("cx", "cy", "r", "vx", "vy"))
 
-    def circles_at(self, t_us) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def circles_at(self, t_us, flight=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Ball circles at times ``t_us`` (µs, shape (N,)) by linear interpolation inside each
-        flight's span (no extrapolation, unlike :meth:`at`).
+        flight's span (no extrapolation, unlike :meth:`at`): that of ``flight`` (int, shape (N,)),
+        where given and not -1, else that of the first flight whose span holds the time.
 
         Returns
         -------
@@ -339,12 +342,13 @@ class Track:
             True where ``t_us`` lies within a flight's first and last track update.
         """
         t = np.asarray(t_us, dtype=np.float64).reshape(-1)
+        wanted = np.full(len(t), -1) if flight is None else np.asarray(flight).reshape(-1)
         out = np.full((3, len(t)), np.nan)
         valid = np.zeros(len(t), dtype=bool)
-        for flight in self.flight_ids():
-            rows = self.select(self.flight == flight)
+        for fid in self.flight_ids():
+            rows = self.select(self.flight == fid)
             ft = rows.t_us.astype(np.float64)
-            m = (t >= ft[0]) & (t <= ft[-1]) & ~valid
+            m = (t >= ft[0]) & (t <= ft[-1]) & ~valid & ((wanted == fid) | (wanted < 0))
             for k, col in enumerate((rows.cx, rows.cy, rows.r)):
                 out[k, m] = np.interp(t[m], ft, col)
             valid |= m

@@ -12,9 +12,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from capture.cliargs import add_ball_args, ball_attr, box, frequency_hz, positive_int, run_command
+from capture.cliargs import add_ball_args, ball_attr, box, flicker_hz, positive_int, run_command
 from capture.ingest import complete_cut_short, session_from_raw
-from capture.pipeline.replay import ReplayOptions, replay
+from capture.pipeline.replay import ReplayOptions, replay, session_flicker_hz
 from capture.results import format_flight_table, session_results
 from capture.session import open_session, update_session
 
@@ -30,10 +30,10 @@ def add_spin_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--step-us", type=int, default=ReplayOptions.step_us,
                     help="time between spin windows, µs")
     ap.add_argument("--method", choices=["fast", "paper"], default="fast")
-    ap.add_argument("--flicker-hz", type=frequency_hz, metavar="HZ",
-                    help="lights flickered at this frequency (100 on 50 Hz mains, 120 on 60 Hz) and the "
-                         "sensor's anti-flicker was off: leave their events out of ball detection "
-                         "(replay: default, what capture.run --flicker-hz stored)")
+    ap.add_argument("--flicker-hz", type=flicker_hz, metavar="HZ|auto",
+                    help="lights flickered at this frequency (100 on 50 Hz mains, 120 on 60 Hz; auto: find "
+                         "it in the events) and the sensor's anti-flicker was off: leave their events out of "
+                         "ball detection (replay: default, what capture.run --flicker-hz stored)")
 
 
 def spin_options(args, **options) -> ReplayOptions:
@@ -92,9 +92,16 @@ def _run(args) -> None:
     opts = spin_options(args, workers=args.workers)
     recorded_flicker = open_session(session_path).attrs.get("flicker_hz")
     if args.flicker_hz is None and recorded_flicker:  # the recording was made under flickering lights
-        opts.tracker = {"flicker_hz": float(recorded_flicker)}
-        print(f"note: {session_path}: recorded with --flicker-hz {recorded_flicker}: detection leaves "
-              "that light's events out", file=sys.stderr)
+        opts.tracker = {"flicker_hz": recorded_flicker}
+        print(f"note: {session_path}: recorded with --flicker-hz {recorded_flicker}", file=sys.stderr)
+    if opts.tracker.get("flicker_hz") == "auto":
+        found = session_flicker_hz(session_path)
+        opts.tracker = {"flicker_hz": found} if found else {}
+        print(f"note: {session_path}: " + (f"lights flicker at {found:g} Hz: detection leaves their events out"
+                                           if found else "no flickering light found"), file=sys.stderr)
+    elif opts.tracker.get("flicker_hz"):
+        print(f"note: {session_path}: detection leaves the events of a light flickering at "
+              f"{float(opts.tracker['flicker_hz']):g} Hz out", file=sys.stderr)
     result = replay(session_path, rrd_path=args.rrd, options=opts, progress=progress)
     n_flights = len(result.track.flight_ids())
     print(f"{session_path}: {len(result.track)} track rows in {n_flights} flight(s), "

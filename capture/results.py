@@ -84,7 +84,8 @@ def _flight_of(track: Track, t_us: np.ndarray) -> np.ndarray:
 
 
 def window_table(track: Track, spin: dict) -> dict[str, np.ndarray]:
-    """Per-window table: each spin window with its flight, rate in rpm and components.
+    """Per-window table: each spin window with its flight (the spin table's; where that is not known,
+    the flight whose track rows span the window), rate in rpm and components.
 
     Columns: ``flight``, ``t_start_s``, ``t_end_s``, ``rps``, ``rpm``, ``axis_x``, ``axis_y``,
     ``axis_z``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``, ``tilt``,
@@ -100,8 +101,11 @@ def window_table(track: Track, spin: dict) -> dict[str, np.ndarray]:
     total = np.linalg.norm(comp, axis=1)
     eff = np.where(total > 0, np.hypot(comp[:, 0], comp[:, 1]) / np.where(total > 0, total, 1.0), np.nan)
     conf = np.asarray(spin["confidence"], np.float64)
+    flight = np.array(spin["flight"], np.int32) if "flight" in spin else np.full(n, -1, np.int32)
+    unknown = flight < 0
+    flight[unknown] = _flight_of(track, ((t0 + t1) // 2)[unknown])
     return {
-        "flight": _flight_of(track, (t0 + t1) // 2), "t_start_s": t0 * 1e-6, "t_end_s": t1 * 1e-6,
+        "flight": flight, "t_start_s": t0 * 1e-6, "t_end_s": t1 * 1e-6,
         "rps": rps, "rpm": 60.0 * rps, "axis_x": axis[:, 0], "axis_y": axis[:, 1], "axis_z": axis[:, 2],
         "topspin_rpm": 60.0 * comp[:, 0], "sidespin_rpm": 60.0 * comp[:, 1], "gyro_rpm": 60.0 * comp[:, 2],
         "efficiency": eff, "tilt": np.array([tilt_clock(a, b) for a, b in comp[:, :2]], dtype=object),

@@ -32,13 +32,13 @@ from capture.cliargs import (
     ball_attr,
     box,
     flicker_band,
-    frequency_hz,
+    flicker_hz,
     name_int,
     run_command,
 )
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
-from capture.pipeline.replay import REVIEW_NAME, ReplayOptions, ReplayResult, replay
+from capture.pipeline.replay import REVIEW_NAME, ReplayOptions, ReplayResult, replay, session_flicker_hz
 from capture.results import format_flight_table, session_results
 
 PROG = "python -m capture.run"
@@ -80,9 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--led-roi", type=box, metavar="X0,Y0,X1,Y1",
                     help="sync-box LED region in GoPro pixels (default: found automatically)")
     add_ball_args(ap)
-    ap.add_argument("--flicker-hz", type=frequency_hz, metavar="HZ",
-                    help="lights flicker at this frequency (100 on 50 Hz mains, 120 on 60 Hz): leave their events "
-                         "out of ball detection, live and in the analysis (use --anti-flicker where the sensor has it)")
+    ap.add_argument("--flicker-hz", type=flicker_hz, metavar="HZ|auto",
+                    help="lights flicker at this frequency (100 on 50 Hz mains, 120 on 60 Hz; auto: find it in the "
+                         "events): leave their events out of ball detection, live and in the analysis (use "
+                         "--anti-flicker where the sensor has it)")
     ap.add_argument("--no-analysis", action="store_true", help="skip the offline analysis at the end")
     ap.add_argument("--quiet", action="store_true", help="no status line or progress bars")
     return ap
@@ -123,7 +124,11 @@ def _run(args, out: Path, stop: threading.Event) -> int:
         if not args.quiet:
             print("Analysing the session (detection, spin, Rerun recording)...", file=sys.stderr, flush=True)
         try:
-            options = ReplayOptions(tracker={"flicker_hz": args.flicker_hz} if args.flicker_hz else {})
+            flicker = session_flicker_hz(out) if args.flicker_hz == "auto" else args.flicker_hz
+            if args.flicker_hz == "auto" and not args.quiet:
+                print(f"Lights flicker at {flicker:g} Hz: detection leaves their events out" if flicker
+                      else "No flickering light found", file=sys.stderr)
+            options = ReplayOptions(tracker={"flicker_hz": flicker} if flicker else {})
             analysis = replay(out, rrd_path=out / REVIEW_NAME, options=options, progress=not args.quiet)
         except Exception as exc:  # the recording is safe; say why the analysis did not finish
             result.messages.append(f"analysis failed ({type(exc).__name__}: {exc}); "

@@ -204,6 +204,12 @@ _COLUMN_WRITERS = ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_pr
 GIL between codec calls (measured on 2 cores: 39-42 Mev/s stored with two, 29-36 with four)."""
 
 
+def _missing(name: str, dtype) -> float | int:
+    """What a table column holds in rows written before it existed (by an older version): NaN for
+    floats (not measured), -1 for ``flight`` (not known), else 0."""
+    return np.nan if np.dtype(dtype).kind == "f" else (-1 if name == "flight" else 0)
+
+
 def _table_group(parent: zarr.Group, name: str) -> zarr.Group:
     """A table's group; a new one is created with ``n_committed = 0`` in its first metadata write."""
     if name in parent:
@@ -236,7 +242,7 @@ class _Table:
                 filters, compressors = _codecs(name, dtype)
                 self.arrays[name] = group.create_array(
                     name, shape=(0, *tail), chunks=(chunk, *tail), dtype=dtype,
-                    filters=filters, compressors=compressors, fill_value=0)
+                    filters=filters, compressors=compressors, fill_value=_missing(name, dtype))
         if "n_committed" not in group.attrs:  # a table made by an older version
             group.attrs["n_committed"] = 0
         self.n = int(group.attrs["n_committed"])
@@ -1229,13 +1235,12 @@ class Session:
                 "video": str(self.path / video) if video else None}
 
     def _table(self, name: str, columns) -> dict[str, np.ndarray]:
-        """The table's columns; a column the store lacks (written by an older version) reads as NaN
-        (floats) or zeros, one per row."""
+        """The table's columns; a column the store lacks (written by an older version) reads as
+        :func:`_missing` says, one per row."""
         n = self._n(name)
         full = empty_table(columns, n)
         for k, (dtype, _) in columns.items():
-            if np.dtype(dtype).kind == "f":
-                full[k][...] = np.nan
+            full[k][...] = _missing(k, dtype)
         return {k: (v if v is not None else full[k]) for k, v in self._read(name, columns).items()}
 
 

@@ -10,7 +10,8 @@ of the same phase one period earlier (:class:`FlickerFilter`, for a stream) or e
 A ball crossing a pixel rarely fires it again at the same phase one period later; a ball spinning
 in place at a multiple of the light's frequency divided by its texture's repeats does, and would be
 filtered too: use this only where lights flicker and the sensor's own anti-flicker filter
-(``capture.evk.Camera.set_anti_flicker``) was off.
+(``capture.evk.Camera.set_anti_flicker``) was off. :func:`find_flicker_hz` tells whether lights
+flicker at 100 or 120 Hz, from the events themselves.
 """
 
 from __future__ import annotations
@@ -155,6 +156,101 @@ def flicker_mask(events: np.ndarray, width: int, height: int, freq_hz: float,
         e = events[max(s - chunk, 0):s][::-1]
         out[max(s - chunk, 0):s] |= behind.flags(-e["t"].astype(np.float64), e["x"], e["y"])[::-1]
     return out
+
+
+MAINS_FLICKER_HZ = (100.0, 120.0)
+"""The light flicker of 50 and 60 Hz mains."""
+
+_CONTROL_HZ = (87.0, 137.0)
+"""Frequencies no mains light flickers at (nor at a harmonic of): the chance level of the test."""
+
+FLICKER_SAMPLE_US = 300_000
+"""Events of this long a span (from the first) that :func:`find_flicker_hz` looks at, µs ..."""
+
+FLICKER_SAMPLE_EVENTS = 2_000_000
+"""... and at most this many of them (50 ms at 40 Mev/s: five periods) ..."""
+
+FLICKER_TEST_EVENTS = 250_000
+"""... of which the events of every k-th pixel are tested, k as small as keeps at most about this
+many (each pixel's events are tested whole or not at all)."""
+
+MIN_FLICKER_SHARE = 0.15
+"""Least share of the events that fire again one period later (within ``_MATCH_US``) for a scene
+to flicker; it must also be ``MIN_FLICKER_RATIO`` times the share at the control frequencies (on the
+detection benchmark's scenes: 3.0-4.1 times under a 100 Hz light over a quarter of the view, at most
+1.0 times without one, where the share itself reaches 0.21)."""
+
+MIN_FLICKER_RATIO = 2.0
+
+MIN_FLICKER_PIXELS = 0.005
+"""Least share of the sensor's pixels that flicker (a light, not one small object)."""
+
+_MATCH_US = 250.0
+"""How close (µs) an event must come to one period after one of its pixel's events."""
+
+
+def find_flicker_hz(events: np.ndarray, width: int, height: int,
+                    candidates=MAINS_FLICKER_HZ) -> float | None:
+    """The frequency (Hz, one of ``candidates``) at which lights flicker in these events, or None.
+
+    In the first :data:`FLICKER_SAMPLE_US` of events (at most :data:`FLICKER_SAMPLE_EVENTS`; those of
+    a scattered subset of the pixels, :data:`FLICKER_TEST_EVENTS`), the share of events whose pixel fired one
+    period ``1 / f`` earlier (to within 250 µs; of the events at least the longest period after the
+    first) is measured at each candidate ``f`` and at two
+    control frequencies no light flickers at. A candidate wins when its share is at least
+    :data:`MIN_FLICKER_SHARE`, :data:`MIN_FLICKER_RATIO` times the controls', and spread over at
+    least :data:`MIN_FLICKER_PIXELS` of the sensor (flickering light, not a ball spinning in place at
+    the same rate: that still passes where it fills the sensor's view); the one with the largest share.
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+        Time-sorted events inside a ``width`` x ``height`` sensor.
+
+    Returns
+    -------
+    float or None
+    """
+    if not len(events):
+        return None
+    t = events["t"]
+    n = min(int(np.searchsorted(t, int(t[0]) + FLICKER_SAMPLE_US, side="left")), FLICKER_SAMPLE_EVENTS)
+    t = t[:n].astype(np.int64)
+    pixel = events["y"][:n].astype(np.int64) * int(width) + events["x"][:n]
+    every = -(-n // FLICKER_TEST_EVENTS)  # test one pixel in this many (scattered by a hash)
+    if every > 1:
+        keep = ((pixel * 2654435761) % (1 << 32) >> 16) % every == 0  # (the hash's high bits: mixed)
+        pixel, t = pixel[keep], t[keep]
+        if not len(t):
+            return None
+    key = pixel * (1 << 40) + (t - int(t[0]))  # (pixel, time) in one sortable number
+    key.sort()
+
+    def matched(freq_hz: float) -> np.ndarray:
+        """Which events (in ``key`` order) have an event of their pixel one period earlier."""
+        want = key - int(round(1e6 / freq_hz))
+        j = np.searchsorted(key, want)  # the first event at or after the wanted time (of any pixel)
+        hit = np.zeros(len(key), bool)
+        for k in (j - 1, j):  # the events either side of it: same pixel, close in time
+            ok = (k >= 0) & (k < len(key))
+            near = key[np.clip(k, 0, len(key) - 1)]
+            hit |= ok & (np.abs(near - want) <= _MATCH_US)  # (a different pixel is 2^40 µs away)
+        return hit
+
+    # only events at least the longest period after the sample's start can match at every frequency
+    counted = (key & ((1 << 40) - 1)) >= int(round(1e6 / min(*_CONTROL_HZ, *candidates)))
+    if not counted.any():
+        return None
+    chance = max(float(matched(c)[counted].mean()) for c in _CONTROL_HZ)
+    best, best_share = None, 0.0
+    for freq in candidates:
+        hit = matched(float(freq)) & counted
+        share = float(hit.sum() / counted.sum())
+        pixels = len(np.unique(key[hit] >> 40))
+        if (share >= MIN_FLICKER_SHARE and share >= MIN_FLICKER_RATIO * chance
+                and pixels * every >= MIN_FLICKER_PIXELS * width * height and share > best_share):
+            best, best_share = float(freq), share
+    return best
 
 
 def _stamp(period) -> np.ndarray:

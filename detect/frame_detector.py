@@ -108,11 +108,12 @@ class FrameDetector:
 
     def detect(self, image: np.ndarray, *, roi: tuple[float, float, float] | None = None,
                r_range: tuple[float, float] | None = None, max_circles: int = 3,
-               search: bool = True) -> list[FrameCircle]:
+               search: bool = True, learn: bool = True) -> list[FrameCircle]:
         """Circles in ``image`` (grey or BGR), best first.
 
         Every frame of the sequence should pass through here (it updates the
-        background model); ``search=False`` only does that.
+        background model); ``search=False`` only does that. A second region of the same frame
+        is searched with ``learn=False`` (the model compares without learning the frame again).
 
         Parameters
         ----------
@@ -127,8 +128,8 @@ class FrameDetector:
         gray = _gray(image)
         sc = self.background_scale
         small = cv2.resize(gray, None, fx=sc, fy=sc, interpolation=cv2.INTER_AREA) if sc != 1 else gray
-        fg = self._bg.apply(small)
-        self._seen += 1
+        fg = self._bg.apply(small, learningRate=-1 if learn else 0)
+        self._seen += learn
         if not search:
             return []
         use_fg = self._seen > self.warmup_frames

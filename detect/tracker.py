@@ -8,19 +8,23 @@ window until it holds enough of them: ``search_events`` over the sensor while
 searching, ``track_events`` around the prediction while tracking, at most
 ``max_window_us``; the thresholds thus follow the event rate. In each window:
 
-* while no flight is active, the density map of the slice gives candidate
-  clusters; each is motion-compensated with its own centroid velocity and
-  fitted with a circle; the best circle-like one (score >= ``min_score``,
-  radius in ``r_range``) becomes a tentative detection, and ``confirm_slices``
-  consistent detections in a row start a new flight;
-* during a flight, the Kalman prediction gives the search region, the
-  velocity for motion compensation and the gate; a gated fit updates the
-  filter. The flight ends when the ball leaves the sensor, after
-  ``max_misses`` slices without a fit, or when confident fits fall outside the
-  gate twice in a row (hit or bounce); the next slices search again and start
-  a new flight.
+* each ball being tracked (a flight) has its own Kalman filter and window:
+  the prediction gives the search region, the velocity for motion compensation
+  and the gate; a gated fit updates the filter. The flight ends when the ball
+  leaves the sensor, after ``max_misses`` slices without a fit, or when
+  confident fits fall outside the gate twice in a row (hit or bounce: those fits
+  start the next flight's detections);
+* the search looks for balls not yet tracked: the density map of the window's
+  events (those near a tracked ball left out) gives candidate clusters; each is
+  motion-compensated with its own centroid velocity and fitted with a circle;
+  each circle-like one (score >= ``min_score``, radius in ``r_range``) is a
+  tentative detection, and ``confirm_slices`` consistent detections in a row
+  start a new flight. With no flight it runs every slice; while balls are
+  tracked, one slice in ``SEARCH_STRIDE_TRACKING`` (every slice while a
+  detection waits for confirmation), so two balls in view at once are two
+  flights, tracked side by side.
 
-Frames (already on the event clock) are searched with Hough circles around the
+Frames (already on the event clock) are searched with Hough circles around each
 prediction and fused as measurements with ``frame_sigma_px``. ``update()``
 returns the causal (filtered) rows as they come; the track's final rows are
 Rauch-Tung-Striebel smoothed (the best velocity for spin estimation) with a fixed
@@ -42,7 +46,7 @@ from capture.events import EVENT_DTYPE, Track, concatenate
 from detect.event_detector import (CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle,
                                    hough_circles)
 from detect.frame_detector import FrameDetector
-from detect.flicker import FlickerFilter, flicker_mask
+from detect.flicker import FLICKER_SAMPLE_EVENTS, FLICKER_SAMPLE_US, FlickerFilter, find_flicker_hz, flicker_mask
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
 
@@ -74,13 +78,14 @@ MAX_SURROUNDED_TRACKING = 0.75
 is lost in clutter, e.g. a flickering light, and the window is no measurement)."""
 
 SPLIT_MIN_COVERAGE = 0.7
-"""A ball told apart from what touches it shows its rim on at least this share of its sides (the
-rounded end of an arm or a racket handle shows half of it)."""
+"""A ball told apart from what touches it, or found while another ball is tracked, shows its rim on
+at least this share of its sides (the rounded end of an arm or a racket handle shows half of it, a
+player's head a third: second balls on the detection benchmark show 0.8-0.97)."""
 
 SPLIT_MIN_SPEED_R_S = 25.0
-"""A flight found only by telling a ball apart from what touches it must move at least this many
-radii per second (about 2.5 m/s for any ball): a round thing at rest against a body (a head on a
-player, a ball held in a hand) is no flight."""
+"""A flight found only by telling a ball apart from what touches it, or found while another ball is
+tracked, must move at least this many radii per second (about 2.5 m/s for any ball): a round thing
+at rest against a body (a head on a player, a ball held in a hand) is no flight."""
 
 
 def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 12,
@@ -124,10 +129,53 @@ def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: f
     return np.flatnonzero(inside)
 
 
+SEARCH_STRIDE_TRACKING = 4
+"""While balls are tracked, a search window for another one starts this many slices after the last
+(a player in view costs the search its fits in every window), or the next slice while a detection
+waits for confirmation. A cluster that overlaps one rejected in the windows before is then taken
+for the same (not only one that overlaps it by 30 %): parts of a player come and go."""
+
+_MAX_CHAINS = 4
+"""Chains of detections not yet confirmed as flights, at most."""
+
+
 def _velocity(a, b) -> tuple[float, float]:
     """Image velocity (px/s) from detection ``a`` to ``b``, each ``(t_us, CircleFit, ...)``."""
     dt_s = max((b[0] - a[0]) * 1e-6, 1e-9)
     return (b[1].cx - a[1].cx) / dt_s, (b[1].cy - a[1].cy) / dt_s
+
+
+def _continues(entry, m: int, fit: CircleFit) -> bool:
+    """Whether ``fit`` (a window centred at ``m`` µs) continues the chain whose last detection is
+    ``entry`` ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size."""
+    tm, tf, tv = entry[:3]
+    if m <= tm:  # (a window older than the chain's last detection continues nothing)
+        return False
+    dt_s = (m - tm) * 1e-6
+    px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
+    return bool(np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25)
+
+
+def _overlap(fit: CircleFit, circle: tuple[float, float, float]) -> bool:
+    """Whether circle ``fit`` overlaps ``circle`` ``(cx, cy, r)`` (px)."""
+    return bool(np.hypot(fit.cx - circle[0], fit.cy - circle[1]) < fit.r + circle[2])
+
+
+def _same_ball(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two Kalman states (:mod:`detect.kalman`) at one time are the same ball: centres
+    within half the smaller radius, radii within a quarter of the larger, and the same velocity to
+    within a third of the faster (two balls crossing each other differ there) or 10 radii/s."""
+    r = min(a[6], b[6])
+    dv = np.hypot(a[2] - b[2], a[3] - b[3])
+    return bool(np.hypot(a[0] - b[0], a[1] - b[1]) < 0.5 * r and abs(a[6] - b[6]) <= 0.25 * max(a[6], b[6])
+                and dv <= max(np.hypot(a[2], a[3]), np.hypot(b[2], b[3])) / 3 + 10.0 * r)
+
+
+def _by_time(track: Track) -> Track:
+    """The rows of ``track`` sorted by time (rows of one time keep their order)."""
+    if np.all(track.t_us[1:] >= track.t_us[:-1]):
+        return track
+    return track.select(np.argsort(track.t_us, kind="stable"))
 
 
 def _inside(a: CircleFit, b: CircleFit) -> bool:
@@ -147,6 +195,51 @@ def _iou(a, b) -> float:
         return 0.0
     inter = w * h
     return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
+class _Window:
+    """Slices joined into one detection window (the search's, or one flight's around its prediction)."""
+
+    def __init__(self):
+        self.pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.start_us: int | None = None  # start of the window being joined, µs (None: empty)
+        self.n = 0
+
+    def join(self, t, x, y, s0: int, s1: int, longest_us: int, need: int | None = None):
+        """Add slice ``[s0, s1)``'s events; the whole window ``(t, x, y, start_us)`` once it holds
+        ``need`` events or is ``longest_us`` long, else None (the slice is kept for the next)."""
+        start = s0 if self.start_us is None else self.start_us
+        self.pieces.append((t, x, y))
+        self.n += len(t)
+        if s1 - start < longest_us and (need is None or self.n < need):
+            self.start_us = start
+            return None
+        pieces = self.pieces
+        self.drop()
+        if len(pieces) == 1:
+            return (*pieces[0], start)
+        return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]),
+                np.concatenate([p[2] for p in pieces]), start)
+
+    def drop(self) -> None:
+        self.pieces, self.start_us, self.n = [], None, 0
+
+
+class _Flight:
+    """One ball being tracked: its filter and what the tracking windows learnt of it."""
+
+    def __init__(self, number: int, kf: CircleKalman, ball_rate: float):
+        self.number = number
+        self.kf = kf
+        self.ball_rate = ball_rate  # the ball's events per µs near the prediction (recent windows)
+        self.window = _Window()
+        self.scores: list[float] = []  # score of each update
+        self.misses = 0  # windows in a row without a gated fit
+        self.outliers = 0  # fits in a row outside the gate
+        self.outlier_fits: list = []  # those fits (a hit, a bounce?), as chain entries
+        self.n_final = 0  # updates whose rows are final
+        self.zone = (math.nan,) * 4  # (x0, x1, y0, y1) px: where the ball and its surround were this slice
+        self.circle = (math.nan, math.nan, 0.0)  # predicted (cx, cy, r) px this slice
 
 
 class BallTracker:
@@ -191,11 +284,14 @@ class BallTracker:
         window (around the prediction); slices are joined until a window holds them.
     max_window_us : int
         Longest window, µs (a multiple of ``slice_us``).
-    flicker_hz : float, optional
+    flicker_hz : float or "auto", optional
         A light flickering at this frequency (100 / 120 Hz: twice the mains) lights the scene:
         events of pixels that fired at the same phase one period earlier are left out of
         detection (:class:`detect.flicker.FlickerFilter`; the first period is not filtered).
-        None (default): no filtering.
+        ``"auto"``: the frequency, if any, is found in the stream's first
+        :data:`detect.flicker.FLICKER_SAMPLE_US` (or :data:`detect.flicker.FLICKER_SAMPLE_EVENTS`,
+        :func:`detect.flicker.find_flicker_hz`; tracking starts once it is) and then kept in
+        :attr:`flicker_hz`. None (default): no filtering.
     """
 
     def __init__(self, width: int, height: int, *, slice_us: int = 2000, block_us: int = 20000,
@@ -228,30 +324,29 @@ class BallTracker:
         self.smooth_lag_us = int(smooth_lag_us)
         self.search_events, self.track_events = int(search_events), int(track_events)
         self.max_window_us = int(max_window_us)
-        self._acc: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # slices joined into a window
-        self._acc_s0: int | None = None  # start of that window, µs
-        self._acc_n = 0
-        self._ball_rate = 0.0  # the tracked ball's events per µs near the prediction (recent windows)
-        self._outlier_fits: list = []  # fits outside the gate since the last update (a hit, a bounce?)
+        self._search = _Window()  # search slices joined into a window
+        self._search_stride = 1  # slices from the start of one search window to the next
+        self._search_next_us = 0  # while balls are tracked, the next search window starts here
         self._hot = HotPixelMap(width, height) if hot_pixels else None
-        self._flicker = FlickerFilter(width, height, flicker_hz) if flicker_hz is not None else None
+        self._probe: list[np.ndarray] | None = [] if flicker_hz == "auto" else None  # events held meanwhile
+        self.flicker_hz = None if flicker_hz in (None, "auto") else float(flicker_hz)
+        """Frequency (Hz) of the flicker left out of detection; None: none (or not known yet)."""
+        self._flicker = FlickerFilter(width, height, self.flicker_hz) if self.flicker_hz is not None else None
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
         self._frame_seq = itertools.count()
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (events, their times contiguous)
         self._block0: int | None = None
         self._last_t: int | None = None
-        self._kf: CircleKalman | None = None
-        self._scores: list[float] = []
-        self._flight = -1
-        self._misses = 0
-        self._outliers = 0
-        self._tentative: list[tuple[int, CircleFit, tuple[float, float], tuple, bool]] = []
+        self._flights: list[_Flight] = []  # the balls being tracked, oldest first
+        self._n_flights = 0
+        # detections not yet confirmed as a flight, each a chain consistent in time:
+        # [(window middle µs, fit, velocity px/s, (t, x, y) events, found by splitting a cluster)]
+        self._chains: list[list[tuple[int, CircleFit, tuple[float, float], tuple, bool]]] = []
         # (box, windows skipped since its last fit, coarse, rejections in a row)
         self._rejected: list[tuple[tuple[int, int, int, int], int, bool, int]] = []
         self._final: list[Track] = []  # final rows, in chunks
         self._n_final_taken = 0
-        self._flight_final = 0  # updates of the current flight whose rows are final
         self._t_processed: int | None = None
         self._new_rows: list[tuple] = []
         self.frames_skipped = 0
@@ -270,6 +365,13 @@ class BallTracker:
         if events.dtype != EVENT_DTYPE:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
         self._check(events)
+        if self._probe is not None:  # flicker_hz="auto": hold the events until the frequency is found
+            self._probe.append(events)
+            held = [e for e in self._probe if len(e)]
+            if (not held or int(held[-1]["t"][-1]) - int(held[0]["t"][0]) < FLICKER_SAMPLE_US) \
+                    and sum(map(len, held)) < FLICKER_SAMPLE_EVENTS:
+                return self._take_rows()
+            events = self._end_probe()
         if self._flicker is not None and len(events):
             events = events[~self._flicker.flags(events["t"], events["x"], events["y"])]
         if len(events):
@@ -278,6 +380,15 @@ class BallTracker:
             self._pending.append((events, np.ascontiguousarray(events["t"])))
             self._run(final=False)
         return self._take_rows()
+
+    def _end_probe(self) -> np.ndarray:
+        """Find the flicker frequency in the events held (``flicker_hz="auto"``); returns them."""
+        events = concatenate([e for e in self._probe if len(e)]) if self._probe else np.zeros(0, EVENT_DTYPE)
+        self._probe = None
+        self.flicker_hz = find_flicker_hz(events, self.width, self.height)
+        if self.flicker_hz is not None:
+            self._flicker = FlickerFilter(self.width, self.height, self.flicker_hz)
+        return events
 
     def _check(self, events: np.ndarray) -> None:
         """Refuse, with one line naming the first offence, events out of time order (within the
@@ -309,40 +420,52 @@ class BallTracker:
         heapq.heappush(self._frame_queue, (int(t_us), next(self._frame_seq), image))
 
     def finish(self) -> Track:
-        """Process what is left and return the whole track (smoothed unless ``smooth=False``)."""
+        """Process what is left and return the whole track (smoothed unless ``smooth=False``), its
+        rows sorted by time (those of two balls in view at once interleave)."""
+        if self._probe is not None:  # a stream shorter than the flicker sample
+            self._last_t = None  # (its events were checked as they came)
+            self.update(self._end_probe())
         self._run(final=True)
         self._frames_until(None)
-        self._end_flight()
+        for fl in list(self._flights):
+            self._end_flight(fl)
         self._take_rows()
-        return Track.concat(self._final)
+        return _by_time(Track.concat(self._final))
 
     def take_final(self) -> Track:
-        """Track rows that became final since the last call (see the module docstring)."""
+        """Track rows that became final since the last call, sorted by time (see the module
+        docstring; with two balls in view, a later call may return rows of one that are older than
+        rows of the other returned before)."""
         out = Track.concat(self._final[self._n_final_taken:])
         self._n_final_taken = len(self._final)
-        return out
+        return _by_time(out)
 
     @property
-    def active_flight(self) -> int | None:
-        """Number of the flight being tracked, ``None`` between flights."""
-        return None if self._kf is None else self._flight
+    def active_flights(self) -> tuple[int, ...]:
+        """Numbers of the flights being tracked (one per ball in view), oldest first."""
+        return tuple(fl.number for fl in self._flights)
 
     @property
     def rows_final_before_us(self) -> int | None:
         """Time (µs) before which no further track rows will be emitted, ``None`` before any
         events were processed.
 
-        Rows still to come lie at or after the start of the window being joined, the first
-        tentative detection of a flight not yet confirmed (its rows are emitted when it is), and
-        the middle of the last slice (a frame there may still be fused).
+        Rows still to come lie at or after the start of each window being joined, the first
+        tentative detection of each flight not yet confirmed (its rows are emitted when it is), the
+        first fit outside a flight's gate since its last update (a hit: the next flight's first
+        detection), and the middle of the last slice (a frame there may still be fused).
         """
         if self._t_processed is None:
             return None
         bound = self._t_processed - self.slice_us
-        if self._acc_s0 is not None:
-            bound = min(bound, self._acc_s0)
-        if self._tentative:
-            bound = min(bound, self._tentative[0][0])
+        for w in (self._search, *(fl.window for fl in self._flights)):
+            if w.start_us is not None:
+                bound = min(bound, w.start_us)
+        for chain in self._chains:
+            bound = min(bound, chain[0][0])
+        for fl in self._flights:  # fits outside the gate may become a new flight's first rows
+            if fl.outlier_fits:
+                bound = min(bound, fl.outlier_fits[0][0])
         return bound
 
     # ------------------------------------------------------------------ blocks and slices
@@ -385,35 +508,24 @@ class BallTracker:
 
     def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, s0: int, s1: int) -> None:
         """One slice ``[s0, s1)``'s events (hot pixels not yet removed: tracking removes them from
-        the few events near the ball only)."""
-        if self._kf is not None:
-            self._track_slice(t, x, y, s0, s1)
-        if self._kf is None:
-            if self._hot is not None:
-                keep = np.flatnonzero(self._hot.keep(y * self.width + x))
-                t, x, y = t.take(keep), x.take(keep), y.take(keep)
-            self._search_slice(t, x, y, s0, s1)
-
-    def _join(self, t, x, y, s0: int, s1: int, *, need: int | None = None, span_us: int | None = None):
-        """Add a slice to the window being joined; the whole window ``(t, x, y, start_us)`` once it
-        holds ``need`` events, is ``span_us`` or ``max_window_us`` long, else None (the slice is
-        kept for the next)."""
-        start = s0 if self._acc_s0 is None else self._acc_s0
-        self._acc.append((t, x, y))
-        self._acc_n += len(t)
-        longest = self.max_window_us if span_us is None else min(span_us, self.max_window_us)
-        if s1 - start < longest and (need is None or self._acc_n < need):
-            self._acc_s0 = start
-            return None
-        pieces = self._acc
-        self._drop_window()
-        if len(pieces) == 1:
-            return (*pieces[0], start)
-        return (np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces]),
-                np.concatenate([p[2] for p in pieces]), start)
-
-    def _drop_window(self) -> None:
-        self._acc, self._acc_s0, self._acc_n = [], None, 0
+        the few events near each ball only)."""
+        for fl in list(self._flights):
+            self._track_slice(fl, t, x, y, s0, s1)
+        self._end_duplicates()
+        if self._flights:
+            # while balls are tracked, another is searched for among the events away from them, in
+            # one slice of SEARCH_STRIDE_TRACKING while nothing waits for confirmation
+            if self._search.start_us is None and s0 < self._search_next_us:
+                return
+            keep = np.ones(len(t), bool)
+            for fl in self._flights:
+                keep[_in_box(x, y, *fl.zone, self.width, self.height)] = False
+            keep = np.flatnonzero(keep)
+            t, x, y = t.take(keep), x.take(keep), y.take(keep)
+        if self._hot is not None:
+            keep = np.flatnonzero(self._hot.keep(y * self.width + x))
+            t, x, y = t.take(keep), x.take(keep), y.take(keep)
+        self._search_slice(t, x, y, s0, s1)
 
     def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
         """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s).
@@ -482,14 +594,14 @@ class BallTracker:
         found = [f for f in found if not any(_inside(f[0], g[0]) for g in found if g is not f)]
         return max(found, key=lambda f: f[0].score, default=best)
 
-    def _track_slice(self, t, x, y, s0: int, s1: int) -> None:
-        kf = self._kf
-        start = s0 if self._acc_s0 is None else self._acc_s0
+    def _track_slice(self, fl: _Flight, t, x, y, s0: int, s1: int) -> None:
+        kf = fl.kf
+        start = s0 if fl.window.start_us is None else fl.window.start_us
         m = max((start + s1) // 2, kf.t_us)  # a frame may have updated the filter inside the window
         state, cov = kf.predict(m)
         cx, cy, vx, vy, r = state[0], state[1], state[2], state[3], state[6]
         if cx < -r or cy < -r or cx > self.width + r or cy > self.height + r:
-            self._end_flight()
+            self._end_flight(fl)
             return
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
         reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
@@ -497,13 +609,15 @@ class BallTracker:
         around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
         hx = around + abs(vx) * (s1 - start) * 0.5e-6
         hy = around + abs(vy) * (s1 - start) * 0.5e-6
-        box = _in_box(x, y, cx - hx, cx + hx, cy - hy, cy + hy, self.width, self.height)
+        fl.zone, fl.circle = (cx - hx, cx + hx, cy - hy, cy + hy), (cx, cy, r)
+        box = _in_box(x, y, *fl.zone, self.width, self.height)
         if self._hot is not None:
             box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
         # the window lasts as long as the ball needs to fire track_events at its recent rate, so
         # that a ball lost from the prediction is missed after that time, not after max_window_us
-        span = self.track_events / max(self._ball_rate, 1e-9)
-        win = self._join(t.take(box), x.take(box), y.take(box), s0, s1, span_us=int(span))
+        span = self.track_events / max(fl.ball_rate, 1e-9)
+        win = fl.window.join(t.take(box), x.take(box), y.take(box), s0, s1,
+                             min(int(span), self.max_window_us))
         if win is None:
             return
         t, x, y, start = win
@@ -519,52 +633,65 @@ class BallTracker:
             # flickering light, a body behind it) and the window is no measurement
             fit = None
         if fit is None or fit.score < self.min_score:
-            self._misses += 1
-            if self._misses >= self.max_misses:
-                self._end_flight()
+            fl.misses += 1
+            if fl.misses >= self.max_misses:
+                self._end_flight(fl)
             return
         sigma_r = 1.5 * fit.sigma_px
         d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
         dist = np.hypot(fit.cx - cx, fit.cy - cy)
         if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
             kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
-            self._ball_rate = 0.5 * self._ball_rate + 0.5 * int(sel.sum()) / max(s1 - start, 1)
-            self._scores.append(fit.score)
-            self._emit(m)
-            self._misses = self._outliers = 0
-            self._outlier_fits = []
+            fl.ball_rate = 0.5 * fl.ball_rate + 0.5 * int(sel.sum()) / max(s1 - start, 1)
+            fl.scores.append(fit.score)
+            self._emit(fl, m)
+            fl.misses = fl.outliers = 0
+            fl.outlier_fits = []
         else:
-            self._outliers += 1
-            self._misses += 1
+            fl.outliers += 1
+            fl.misses += 1
             ts, xs, ys = t[sel], x[sel], y[sel]
             v_own = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
-            self._outlier_fits.append((m, fit, v_own, (ts, xs, ys), False))
-            if self._outliers >= 2 or self._misses >= self.max_misses:
+            fl.outlier_fits.append((m, fit, v_own, (ts, xs, ys), False))
+            if fl.outliers >= 2 or fl.misses >= self.max_misses:
                 # hit or bounce: the outlying fits are the next flight's first detections
-                seeds = self._outlier_fits[-self._outliers:] if self._outliers >= 2 else []
-                self._end_flight()
-                self._tentative = seeds
+                seeds = fl.outlier_fits[-fl.outliers:] if fl.outliers >= 2 else []
+                self._end_flight(fl)
+                if seeds:  # (the oldest chain makes room)
+                    self._chains = [*self._chains[-(_MAX_CHAINS - 1):], seeds]
+
+    def _end_duplicates(self) -> None:
+        """End the younger of two flights that have come to follow the same ball (after two balls
+        passed close by each other, say): :func:`_same_ball` at the later of their last updates."""
+        for a, b in itertools.combinations(list(self._flights), 2):
+            if a in self._flights and b in self._flights:
+                t = max(a.kf.t_us, b.kf.t_us)
+                if _same_ball(a.kf.predict(t)[0], b.kf.predict(t)[0]):
+                    self._end_flight(b)
 
     def _search_slice(self, t, x, y, s0: int, s1: int) -> None:
-        win = self._join(t, x, y, s0, s1, need=self.search_events)
+        win = self._search.join(t, x, y, s0, s1, self.max_window_us, need=self.search_events)
         if win is None:
             return
         t, x, y, start = win
         m = (start + s1) // 2
-        span = max(s1 - start, self.slice_us)
-        best = None
+        span = max(s1 - start, self._search_stride * self.slice_us)  # from the last search window, at most
+        found = []
         margin = 2 * self.cell_px
         rejected = []
+        same_iou = 0.0 if self._flights else 0.3  # (SEARCH_STRIDE_TRACKING)
+        # windows come SEARCH_STRIDE_TRACKING times rarer while tracking: skips as long in time
+        skip_max = _REJECT_SKIP_MAX // SEARCH_STRIDE_TRACKING if self._flights else _REJECT_SKIP_MAX
         for box, coarse in self._candidates(x, y):
             # a cluster that was no ball in the last windows (a player...) is refitted only every few
             # windows, fewer the more often it was rejected: the search then stays cheap while such a
             # cluster is in view
-            prev = max(((k, n) for b, k, c, n in self._rejected if c == coarse and _iou(b, box) > 0.3),
+            prev = max(((k, n) for b, k, c, n in self._rejected if c == coarse and _iou(b, box) > same_iou),
                        key=lambda e: (e[1], e[0]), default=None)
             edge = 2 * self.cell_px  # a ball coming in over the border is fitted every slice
             at_border = (box[0] <= edge or box[1] <= edge or box[2] >= self.width - edge
                          or box[3] >= self.height - edge)
-            if prev is not None and prev[0] < min(_REJECT_SKIP << (prev[1] - 1), _REJECT_SKIP_MAX) and not at_border:
+            if prev is not None and prev[0] < min(_REJECT_SKIP << (prev[1] - 1), skip_max) and not at_border:
                 rejected.append((box, prev[0] + 1, coarse, prev[1]))
                 continue
             strikes = 1 if prev is None else prev[1] + 1
@@ -581,76 +708,91 @@ class BallTracker:
             if fit is None or fit.score < self.min_score:
                 rejected.append((box, 0, coarse, strikes))
                 continue
-            if best is not None and fit.score <= best[0].score:
-                continue
             # a flight starts only on a ball (nearly) fully on the sensor: a partly visible one has a
-            # moving centroid, so its velocity and compensation would be wrong
+            # moving centroid, so its velocity and compensation would be wrong; and not on a ball
+            # already tracked (the edge of its surround); while one is, another shows its rim all
+            # round (a player's head fits a circle on a third of its sides)
             inner = 0.8 * fit.r
             if (fit.cx - inner >= 0 and fit.cy - inner >= 0 and fit.cx + inner <= self.width - 1
-                    and fit.cy + inner <= self.height - 1):
-                best = (fit, v0, (ts, xs, ys), split, (box, coarse))
+                    and fit.cy + inner <= self.height - 1
+                    and not any(_overlap(fit, fl.circle) for fl in self._flights)
+                    and (not self._flights or fit.coverage >= SPLIT_MIN_COVERAGE)):
+                found.append((fit, v0, (ts, xs, ys), split, (box, coarse)))
         self._rejected = rejected
-        if best is None:
-            if self._tentative and m - self._tentative[-1][0] > 2 * span:
-                self._tentative = []
-            return
-        fit, v0, evs, split, (box, coarse) = best
-        if self._tentative:
-            tm, tf, tv = self._tentative[-1][:3]
-            dt_s = (m - tm) * 1e-6
-            px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
-            ok = (np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25
-                  and m - tm <= 2 * span)
-            if not ok:
-                self._tentative = []
-            elif len(self._tentative) >= 1:
-                v0 = _velocity(self._tentative[0], (m, fit))
-        self._tentative.append((m, fit, v0, evs, split))
-        if len(self._tentative) >= self.confirm_slices:
-            if all(tent[4] for tent in self._tentative) and self._slow(fit):
-                # a round part of something bigger moving with it (a head on a body), not a ball
-                self._tentative = []
-                self._rejected.append((box, 0, coarse, 1))
-                return
-            self._start_flight()
+        self._extend_chains(found, m, span)
+        self._search_stride = 1 if self._chains or not self._flights else SEARCH_STRIDE_TRACKING
+        self._search_next_us = s1 + (self._search_stride - 1) * self.slice_us
 
-    def _slow(self, fit: CircleFit) -> bool:
-        """Whether the tentative detections moved less than ``SPLIT_MIN_SPEED_R_S`` radii/s."""
-        return bool(np.hypot(*_velocity(self._tentative[0], self._tentative[-1])) < SPLIT_MIN_SPEED_R_S * fit.r)
+    def _extend_chains(self, found: list, m: int, span: int) -> None:
+        """Add a search window's detections (``found``: ``(fit, velocity, events, split, (box,
+        coarse))``, window middle ``m`` µs, ``span`` µs between windows) to the chains they continue,
+        or start chains with them; start a flight from each chain ``confirm_slices`` long."""
+        # one detection per ball: of two overlapping ones (two clusters of the same ball), the best
+        kept = []
+        for f in sorted(found, key=lambda f: -f[0].score):
+            if not any(_overlap(f[0], (g[0].cx, g[0].cy, g[0].r)) for g in kept):
+                kept.append(f)
+        self._chains = [c for c in self._chains if m - c[-1][0] <= 2 * span]  # stale chains end
+        extended = []
+        for fit, v0, evs, split, key in kept:
+            chain = min((c for c in self._chains if all(c is not e for e in extended) and _continues(c[-1], m, fit)),
+                        key=lambda c: np.hypot(fit.cx - c[-1][1].cx, fit.cy - c[-1][1].cy), default=None)
+            if chain is None:
+                if len(self._chains) >= _MAX_CHAINS:
+                    continue
+                chain = []
+                self._chains.append(chain)
+            else:
+                v0 = _velocity(chain[0], (m, fit))
+            chain.append((m, fit, v0, evs, split))
+            extended.append(chain)
+            if len(chain) >= self.confirm_slices:
+                self._chains.remove(chain)
+                if (self._flights or all(entry[4] for entry in chain)) and self._slow(chain):
+                    # a round part of something bigger moving with it (a head on a body), not a ball;
+                    # and while a ball is in play, another one is found only in flight
+                    self._rejected.append((key[0], 0, key[1], 1))
+                    continue
+                self._start_flight(chain)
 
-    def _start_flight(self) -> None:
-        # refit the tentative detections with the velocity of their displacement (better
-        # motion compensation than each slice's own centroid velocity)
-        v = _velocity(self._tentative[0], self._tentative[-1])
+    def _slow(self, chain) -> bool:
+        """Whether a chain's detections moved less than ``SPLIT_MIN_SPEED_R_S`` radii/s."""
+        return bool(np.hypot(*_velocity(chain[0], chain[-1])) < SPLIT_MIN_SPEED_R_S * chain[-1][1].r)
+
+    def _start_flight(self, chain) -> None:
+        # refit the chain's detections with the velocity of their displacement (better motion
+        # compensation than each window's own centroid velocity)
+        v = _velocity(chain[0], chain[-1])
         fits = []
-        for tm, f, _, (ts, xs, ys), _ in self._tentative:
+        for tm, f, _, (ts, xs, ys), _ in chain:
             refit = self._fit(ts, xs, ys, tm, (f.cx, f.cy), v, self.r_range)
             fits.append((tm, refit if refit is not None and refit.score >= self.min_score else f))
         (t0, f0), *rest = fits
-        self._ball_rate = float(np.median([len(ts) / max(int(ts[-1]) - int(ts[0]), self.slice_us)
-                                           for _, _, _, (ts, _, _), _ in self._tentative]))
-        self._flight += 1
-        self._kf = CircleKalman(t0, (f0.cx, f0.cy, f0.r), velocity_px_s=v,
-                                velocity_sigma_px_s=0.2 * np.hypot(*v) + 50.0 * f0.r, sigma_px=f0.sigma_px,
-                                **self.kf_opts)
-        self._scores = [f0.score]
-        self._emit(t0)
+        rate = float(np.median([len(ts) / max(int(ts[-1]) - int(ts[0]), self.slice_us)
+                                for _, _, _, (ts, _, _), _ in chain]))
+        kf = CircleKalman(t0, (f0.cx, f0.cy, f0.r), velocity_px_s=v,
+                          velocity_sigma_px_s=0.2 * np.hypot(*v) + 50.0 * f0.r, sigma_px=f0.sigma_px,
+                          **self.kf_opts)
+        fl = _Flight(self._n_flights, kf, rate)
+        self._n_flights += 1
+        self._flights.append(fl)
+        fl.circle = (f0.cx, f0.cy, f0.r)
+        fl.scores = [f0.score]
+        self._emit(fl, t0)
         for tm, f in rest:
-            self._kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
-            self._scores.append(f.score)
-            self._emit(tm)
-        self._tentative = []
-        self._misses = self._outliers = 0
+            kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
+            fl.scores.append(f.score)
+            self._emit(fl, tm)
+        # other chains on this ball (its surround, seen in a window before the flight existed) end
+        last = chain[-1][1]
+        self._chains = [c for c in self._chains if not _overlap(c[-1][1], (last.cx, last.cy, last.r))]
 
-    def _end_flight(self) -> None:
-        self._drop_window()
-        self._outlier_fits = []
-        if self._kf is not None:
-            self._finalise(ended=True)
-        self._kf = None
-        self._flight_final = 0
-        self._scores = []
-        self._misses = self._outliers = 0
+    def _end_flight(self, fl: _Flight) -> None:
+        self._finalise(fl, ended=True)
+        self._flights.remove(fl)
+        # the search window being joined left this ball's events out: start a new one
+        self._search.drop()
+        self._search_stride, self._search_next_us = 1, 0
 
     # ------------------------------------------------------------------ frames
     def _frames_until(self, t_us: int | None) -> None:
@@ -659,50 +801,55 @@ class BallTracker:
             self._process_frame(image, tf)
 
     def _process_frame(self, image: np.ndarray, t_us: int) -> None:
-        kf = self._kf
-        if kf is None or t_us < kf.t_us:
-            self.frames_skipped += kf is not None
+        """Fuse a frame's circles near each tracked ball (a frame older than a flight's last update
+        is skipped for it); every frame updates the frame detector's background model once."""
+        live = [fl for fl in self._flights if t_us >= fl.kf.t_us]
+        self.frames_skipped += bool(self._flights) and not live
+        if not live:
             self._frames.detect(image, search=False)  # keeps the background model current
             return
-        state, cov = kf.predict(t_us)
-        cx, cy, r = state[0], state[1], state[6]
-        half = 1.5 * r + 8.0 + 3.0 * float(np.sqrt(cov[0, 0] + cov[1, 1]))
-        circles = self._frames.detect(image, roi=(cx, cy, half), r_range=(0.7 * r, 1.3 * r + 1.0))
-        if not circles:
-            return
-        c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
-        sig_r = 1.5 * self.frame_sigma_px
-        d2 = kf.innovation(t_us, (c.cx, c.cy), self.frame_sigma_px)
-        if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
-            kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
-            self._scores.append(c.score)
-            self._emit(t_us)
+        for k, fl in enumerate(live):
+            kf = fl.kf
+            state, cov = kf.predict(t_us)
+            cx, cy, r = state[0], state[1], state[6]
+            half = 1.5 * r + 8.0 + 3.0 * float(np.sqrt(cov[0, 0] + cov[1, 1]))
+            circles = self._frames.detect(image, roi=(cx, cy, half), r_range=(0.7 * r, 1.3 * r + 1.0),
+                                          learn=k == 0)
+            if not circles:
+                continue
+            c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
+            sig_r = 1.5 * self.frame_sigma_px
+            d2 = kf.innovation(t_us, (c.cx, c.cy), self.frame_sigma_px)
+            if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
+                kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+                fl.scores.append(c.score)
+                self._emit(fl, t_us)
 
     # ------------------------------------------------------------------ rows
-    def _emit(self, t_us: int) -> None:
-        s = self._kf.x
-        self._new_rows.append((t_us, s[0], s[1], s[6], s[2], s[3], self._scores[-1], self._flight))
-        self._finalise(ended=False)
+    def _emit(self, fl: _Flight, t_us: int) -> None:
+        s = fl.kf.x
+        self._new_rows.append((t_us, s[0], s[1], s[6], s[2], s[3], fl.scores[-1], fl.number))
+        self._finalise(fl, ended=False)
 
     def _take_rows(self) -> Track:
         rows, self._new_rows = self._new_rows, []
         if not rows:
             return Track.empty()
         cols = list(zip(*rows))
-        return Track(t_us=cols[0], cx=cols[1], cy=cols[2], r=cols[3], vx=cols[4], vy=cols[5],
-                     score=cols[6], flight=cols[7])
+        return _by_time(Track(t_us=cols[0], cx=cols[1], cy=cols[2], r=cols[3], vx=cols[4], vy=cols[5],
+                              score=cols[6], flight=cols[7]))
 
-    def _finalise(self, ended: bool) -> None:
-        """Make rows of the current flight final: all once it has ended (or unsmoothed); else each
+    def _finalise(self, fl: _Flight, ended: bool) -> None:
+        """Make rows of flight ``fl`` final: all once it has ended (or unsmoothed); else each
         ``block_us`` from its first update once an update ``smooth_lag_us`` after the block's end
         exists, smoothed with the updates before that time (so the result does not depend on
         when this runs)."""
-        kf = self._kf
+        kf = fl.kf
         hist = kf.history
         n = len(hist)
         t_first = hist[0][0]
-        while self._flight_final < n:
-            start = self._flight_final
+        while fl.n_final < n:
+            start = fl.n_final
             if ended or not self.smooth:
                 stop = final = n
             else:
@@ -718,8 +865,9 @@ class BallTracker:
                 t = np.array([h[0] for h in hist[start:final]], np.int64)
                 xs = np.array([h[4] for h in hist[start:final]])
             self._final.append(Track(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
-                                     score=self._scores[start:final], flight=np.full(len(t), self._flight)))
-            self._flight_final = final
+                                     score=fl.scores[start:final], flight=np.full(len(t), fl.number)))
+            fl.n_final = final
+
 
 def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, frame_times_us=None,
                flicker_hz: float | None = None, **opts) -> Track:
@@ -735,11 +883,11 @@ def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, fram
         Camera frames (grey or BGR) in the event camera's pixel geometry.
     frame_times_us : array_like of int, optional
         Mid-exposure time of each frame on the event clock, µs (required with ``frames``).
-    flicker_hz : float, optional
+    flicker_hz : float or "auto", optional
         A light flickering at this frequency (100 / 120 Hz) lights the scene: events of pixels
         that fire at the same phase one period earlier or later are left out of detection
         (:func:`detect.flicker.flicker_mask`: the whole recording is filtered, its first period
-        too).
+        too). ``"auto"``: at the frequency :func:`detect.flicker.find_flicker_hz` finds, if any.
     **opts
         Options of :class:`BallTracker`.
 
@@ -758,6 +906,9 @@ def track_ball(events: np.ndarray, *, width: int, height: int, frames=None, fram
     if flicker_hz is not None and events.dtype == EVENT_DTYPE:  # (another dtype: update says so)
         tracker._check(events)  # order and bounds first (one line naming the problem)
         tracker._last_t = None
-        events = events[~flicker_mask(events, tracker.width, tracker.height, flicker_hz)]
+        if flicker_hz == "auto":
+            flicker_hz = find_flicker_hz(events, tracker.width, tracker.height)
+        if flicker_hz is not None:
+            events = events[~flicker_mask(events, tracker.width, tracker.height, flicker_hz)]
     tracker.update(events)
     return tracker.finish()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -60,6 +60,9 @@ class SpinEstimate:
         The part of ``rps_sigma_pct`` from the sensor's lag (% of ``rps``, 1 sigma, in quadrature
         with the rest): a bias that the windows of a flight share, so averaging them does not
         shrink it; NaN for ``method="paper"``.
+    flight : int
+        Flight number (:class:`capture.events.Track`) of the window the events came from; -1 when
+        they came from no track.
     """
 
     axis: np.ndarray
@@ -76,6 +79,7 @@ class SpinEstimate:
     axis_sigma_deg: float = float("nan")
     rps_sigma_pct: float = float("nan")
     rps_lag_pct: float = float("nan")
+    flight: int = -1
 
 
 def _check_events(events) -> np.ndarray:
@@ -442,6 +446,7 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
             if not skip_errors:
                 raise
             continue
+        est = replace(est, flight=int(win.flight))
         out.append(est)
         previous = (win.flight, win.t_end_us, est)
     return out

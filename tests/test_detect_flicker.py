@@ -1,15 +1,16 @@
 """Software anti-flicker for detection: a 100 Hz light's events are flagged, a crossing ball's are
-kept, the streaming filter equals itself batch by batch, and the tracker finds the ball under the
-light when told its frequency (also through the replay command line)."""
+kept, the streaming filter equals itself batch by batch, the light's frequency is found in the
+events, and the tracker finds the ball under the light when told its frequency or told to find it
+(also through the replay command line)."""
 
 import numpy as np
 import pytest
 
 import sim
-from capture.events import EVENT_DTYPE
+from capture.events import EVENT_DTYPE, Track
 from detect import BallTracker, DetectInputError, track_ball
-from detect.flicker import FlickerFilter, flicker_mask
-from sim.esim import flicker_events
+from detect.flicker import FlickerFilter, find_flicker_hz, flicker_mask
+from sim.esim import flicker_events, merge, noise_events
 
 W, H = 160, 120
 
@@ -124,6 +125,58 @@ def test_the_streaming_tracker_filters_too(lit_flight):
     assert tracker._flicker.n_flagged > 0.3 * len(lit_flight.events)
 
 
+def test_the_light_s_frequency_is_found_in_the_events(lamp, lit_flight, two_balls_at_once):
+    lamp120 = flicker_events(W, H, 0, 80_000, np.random.default_rng(2), freq_hz=120.0, depth=0.1)
+    assert find_flicker_hz(lamp, W, H) == 100.0 and find_flicker_hz(lamp120, W, H) == 120.0
+    assert find_flicker_hz(lit_flight.events, 640, 480) == 100.0  # a quarter of the view, a ball crossing it
+    # no light: balls, noise and hot pixels, a walking player
+    assert find_flicker_hz(merge(*(r.events for r in two_balls_at_once)), 480, 320) is None
+    noise, _ = noise_events(640, 480, 0, 300_000, np.random.default_rng(3), rate_hz_per_px=5.0, hot_pixels=50)
+    assert find_flicker_hz(noise, 640, 480) is None
+    player = sim.flight("volleyball", rps=10.0, radius_px=20.0, width=320, height=240, duration_s=0.1,
+                        start_px=(30.0, 120.0), velocity_px_s=(2500.0, 0.0), distractors=("player",), seed=5)
+    assert find_flicker_hz(player.events, 320, 240) is None
+    assert find_flicker_hz(lamp[:0], W, H) is None
+
+
+def test_many_events_are_tested_on_a_scattered_share_of_the_pixels(lamp, monkeypatch):
+    import detect.flicker as flicker
+
+    monkeypatch.setattr(flicker, "FLICKER_TEST_EVENTS", len(lamp) // 6)  # one pixel in six or seven
+    assert find_flicker_hz(lamp, W, H) == 100.0
+    stripe = lamp[(lamp["x"] >= 1) & (lamp["x"] < 8)]  # a light 7 columns wide, tested on one pixel in 8: seen
+    monkeypatch.setattr(flicker, "FLICKER_TEST_EVENTS", -(-len(stripe) // 8))
+    assert find_flicker_hz(stripe, W, H) == 100.0
+    monkeypatch.setattr(flicker, "FLICKER_TEST_EVENTS", 1)  # one pixel: too few to be a light
+    assert find_flicker_hz(lamp, W, H) is None
+
+
+def test_the_tracker_finds_the_light_s_frequency_itself(lit_flight):
+    rec = lit_flight
+    assert _recall(track_ball(rec.events, width=640, height=480, flicker_hz="auto"), rec) > 0.95
+    tracker = BallTracker(640, 480, flicker_hz="auto")
+    rows = [len(tracker.update(part)) for part in np.array_split(rec.events, 10)]
+    assert tracker.flicker_hz is None and sum(rows) == 0  # the stream (100 ms) is shorter than the sample
+    track = tracker.finish()
+    assert tracker.flicker_hz == 100.0 and _recall(track, rec) > 0.85 and track.t_us[0] <= 15_000
+    plain = BallTracker(640, 480, flicker_hz="auto")
+    plain.update(noise_events(640, 480, 0, 400_000, np.random.default_rng(3), rate_hz_per_px=1.0)[0])
+    assert plain.flicker_hz is None and plain._probe is None  # decided after the sample, no light found
+
+
+def test_replay_finds_the_light_and_says_so(lit_flight, tmp_path, capsys):
+    from capture.replay import main as replay_main
+    from capture.session import create_session, open_session
+
+    with create_session(tmp_path / "lit", width=640, height=480) as w:
+        w.append_events(lit_flight.events)
+    assert replay_main([str(tmp_path / "lit"), "--quiet", "--flicker-hz", "auto"]) == 0
+    assert "lights flicker at 100 Hz" in capsys.readouterr().err
+    s = open_session(tmp_path / "lit")
+    assert s.attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0}  # what was found, stamped
+    assert _recall(Track.from_columns(s.track()), lit_flight) > 0.85  # a stream: filtered from its 2nd period
+
+
 def test_bad_input_is_named_with_the_filter_on():
     ev = np.zeros(3, EVENT_DTYPE)
     ev["t"] = [5, 3, 9]
@@ -142,6 +195,7 @@ def test_replay_option_reaches_the_tracker():
 
     args = build_parser().parse_args(["s", "--flicker-hz", "120"])
     assert spin_options(args).tracker == {"flicker_hz": 120.0}
+    assert spin_options(build_parser().parse_args(["s", "--flicker-hz", "Auto"])).tracker == {"flicker_hz": "auto"}
     assert spin_options(build_parser().parse_args(["s"])).tracker == {}
     for bad in ("-1", "inf", "nan", "x"):
         with pytest.raises(SystemExit) as exit_:
@@ -173,3 +227,5 @@ def test_capture_run_passes_the_flicker_to_the_live_tracker_and_the_analysis(sha
     assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 120.0}
     assert replay_main([str(out), "--quiet"]) == 0  # not told: the recording's frequency
     assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0}
+    assert replay_main([str(out), "--quiet", "--flicker-hz", "auto"]) == 0  # this recording has no such light
+    assert open_session(out).attrs["analysis"]["settings"]["tracker"] == {}

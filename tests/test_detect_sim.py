@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import sim
+from capture.events import Track
 from detect import BallTracker, track_ball
 from sim.esim import noise_events
 
@@ -67,7 +68,7 @@ def test_final_rows_stream_out_during_the_flight_and_never_change(spinning_fligh
     for chunk in np.array_split(ev, 30):
         trk.update(chunk)
         parts.append(trk.take_final())
-        during_flight += len(parts[-1]) if trk.active_flight is not None else 0
+        during_flight += len(parts[-1]) if trk.active_flights else 0
     whole = trk.finish()
     parts.append(trk.take_final())
     assert during_flight >= len(whole) // 5  # rows become final while the flight goes on
@@ -152,6 +153,72 @@ def test_ball_leaving_and_reentering_gives_two_flights(two_crossings):
         # every 2 ms slice with the ball fully on the sensor has a row
         assert inside.sum() >= np.sum(np.arange(rec.truth["t0_us"] + 1000, rec.truth["t0_us"] + 40_000, 2000)
                                       <= part.t_us.max()) - 6
+
+
+def _follows(tr, rec):
+    """Rows of the flight of ``tr`` that follows ``rec``'s ball (the one nearest to it at its first
+    row), and their centre error against the truth where the ball is fully on the sensor (px)."""
+    def error(part):
+        cx, cy, r, _, _ = _flight_truth(rec, part.t_us)
+        inside = (cx - r >= 0) & (cx + r <= W - 1) & (cy - r >= 0) & (cy + r <= H - 1)
+        return np.hypot(part.cx - cx, part.cy - cy)[inside]
+
+    parts = [tr.select(tr.flight == fid) for fid in tr.flight_ids()]
+    part = min(parts, key=lambda p: error(p)[0] if len(error(p)) else np.inf)
+    return part, error(part)
+
+
+def test_two_balls_in_view_at_once_are_tracked_as_two_flights(two_balls_at_once):
+    from sim.esim import merge
+
+    a, b = two_balls_at_once  # crossing the sensor in opposite directions during the same 40 ms
+    tr = track_ball(merge(a.events, b.events), width=W, height=H)
+    assert len(tr.flight_ids()) == 2
+    assert np.all(np.diff(tr.t_us) >= 0)  # one track sorted by time: the two flights' rows interleave
+    (pa, ea), (pb, eb) = _follows(tr, a), _follows(tr, b)
+    assert pa.flight[0] != pb.flight[0]
+    for part, err, rec in ((pa, ea, a), (pb, eb, b)):
+        assert len(err) >= 14  # a row for nearly every 2 ms slice with the ball on the sensor
+        assert np.median(err) < 0.5 and err.max() < 1.5
+        assert np.median(np.abs(part.r - rec.truth["radius_px"])) < 0.7
+    assert min(pa.t_us[-1], pb.t_us[-1]) - max(pa.t_us[0], pb.t_us[0]) >= 30_000  # tracked at the same time
+
+
+def test_a_player_s_head_is_no_second_ball():
+    """While the ball is tracked, the search for another one does not take the head of a player
+    walking in view (a circle on a third of its sides) for one."""
+    rec = sim.rally(seed=3, rps=30.0, axis=(0.0, 0.0, -1.0), duration_s=0.15, fps=None, sync=False)
+    tr = track_ball(rec.events, width=rec.width, height=rec.height)
+    assert len(tr.flight_ids()) == 1
+    cx, cy, r, _, _ = _flight_truth(rec, tr.t_us)
+    assert np.max(np.hypot(tr.cx - cx, tr.cy - cy)) < 2.0
+
+
+def test_two_balls_stream_as_they_track_in_one_batch(two_balls_at_once):
+    from sim.esim import merge
+
+    ev = merge(two_balls_at_once[0].events, two_balls_at_once[1].events)
+    batch = track_ball(ev, width=W, height=H)
+    trk = BallTracker(W, H, smooth_lag_us=10_000)
+    cuts = np.sort(np.random.default_rng(1).integers(0, len(ev), 40))
+    finals, bound = [], None
+    for chunk in np.split(ev, cuts):
+        rows = trk.update(chunk)
+        if bound is not None:  # rows_final_before_us holds for both flights' rows
+            assert np.all(rows.t_us >= bound)
+        bound = trk.rows_final_before_us
+        finals.append(trk.take_final())
+    live = trk.finish()
+    finals.append(trk.take_final())
+    assert all(np.all(np.diff(p.t_us) >= 0) for p in finals)
+    by_time = lambda tr: tr.select(np.lexsort((tr.flight, tr.t_us)))  # noqa: E731
+    streamed, live = by_time(Track.concat(finals)), by_time(live)
+    np.testing.assert_array_equal(streamed.t_us, live.t_us)
+    np.testing.assert_array_equal(streamed.cx, live.cx)  # final rows never change
+    batch = by_time(batch)
+    np.testing.assert_array_equal(live.t_us, batch.t_us)
+    np.testing.assert_array_equal(live.flight, batch.flight)
+    np.testing.assert_allclose(live.cx, batch.cx, atol=0.05)  # 10 ms against whole-flight smoothing
 
 
 def test_frames_detector_and_fusion_on_simulated_frames():

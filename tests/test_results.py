@@ -20,9 +20,10 @@ def _track(velocity, t_us=(0, 100_000), flight=0, r=20.0):
                  flight=np.full(len(t), flight))
 
 
-def _spin(axis, rps, velocity, n=8, t0=0, conf=1.0, rps_noise=0.0, seed=0):
+def _spin(axis, rps, velocity, n=8, t0=0, conf=1.0, rps_noise=0.0, seed=0, flight=-1):
     rng = np.random.default_rng(seed)
     s = empty_table(SPIN_COLUMNS, n)
+    s["flight"][:] = flight  # -1: the flight whose track rows span the window
     s["t_start_us"] = t0 + 10_000 * np.arange(n)
     s["t_end_us"] = s["t_start_us"] + 2000
     s["axis"][:] = np.asarray(axis, float) / np.linalg.norm(axis)
@@ -94,6 +95,22 @@ def test_flights_without_a_trusted_window_are_listed_as_such():
     assert "no trusted estimate" in text and "yield: 1 of 2 flight(s)" in text
     w = window_table(track, spin)
     assert list(np.unique(w["flight"])) == [0, 1] and w["trusted"].sum() == 8
+
+
+def test_two_balls_in_view_at_once_keep_their_own_spin():
+    # two flights over the same 100 ms (two balls): only the spin table's flight column tells
+    # their windows apart
+    v = (3000, 0)
+    track = Track.concat([_track(v), _track((-2000, 0), flight=1)])
+    spin = {k: np.concatenate([a[k], b[k]]) for k, a, b in
+            ((k, _spin((0, 0, -1), 30.0, v, flight=0), _spin((0, -1, 0), 80.0, (-2000, 0), t0=1000, flight=1))
+             for k in SPIN_COLUMNS)}
+    t = flight_table(track, spin)
+    assert list(t["n_windows"]) == [8, 8]
+    assert t["rps"][0] == pytest.approx(30.0) and t["rps"][1] == pytest.approx(80.0)
+    assert t["topspin_rpm"][0] == pytest.approx(1800.0) and t["sidespin_rpm"][1] == pytest.approx(4800.0)
+    unknown = {**spin, "flight": np.full(16, -1, np.int32)}  # a session written before the column existed
+    assert list(flight_table(track, unknown)["n_windows"]) == [16, 0]  # by time: all to the first
 
 
 def _camera(f=1000.0, cx=240.0, cy=160.0, dist=(0.0, 0.0, 0.0, 0.0, 0.0)):

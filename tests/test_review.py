@@ -241,6 +241,34 @@ def test_ball_circle_follows_track_and_clears_after_flight(written):
     assert speed[10_000] == pytest.approx(4000.0)
 
 
+def test_two_balls_in_view_at_once_both_shown_each_spin_on_its_own(tmp_path):
+    t0, t1 = np.arange(10_000, 13_001, 500), np.arange(10_250, 12_751, 500)
+    track = Track(t_us=np.r_[t0, t1], cx=np.r_[10.0 + 0.004 * (t0 - 10_000), 50.0 - 0.004 * (t1 - 10_000)],
+                  cy=np.r_[np.full(len(t0), 20.0), np.full(len(t1), 35.0)], r=np.r_[np.full(len(t0), 8.0),
+                  np.full(len(t1), 6.0)], vx=np.r_[np.full(len(t0), 4000.0), np.full(len(t1), -4000.0)],
+                  vy=np.zeros(len(t0) + len(t1)), score=np.ones(len(t0) + len(t1)),
+                  flight=np.r_[np.zeros(len(t0), int), np.ones(len(t1), int)])
+    track = track.select(np.argsort(track.t_us, kind="stable"))
+    spin = {k: v[:2] for k, v in SPIN.items()}
+    spin.update(t_start_us=np.array([11_000, 11_000]), t_end_us=np.array([12_000, 12_000]), flight=np.array([1, 0]),
+                axis=np.array([[1.0, 0, 0], [0, 1.0, 0]]))
+    with create_session(tmp_path / "s", width=64, height=48) as w:
+        w.append_events(_events())
+        w.write_track(track)
+        w.write_spin(spin)
+    review.write_rrd(tmp_path / "s", tmp_path / "two.rrd", slice_us=SLICE_US, progress=False)
+    data = read_rrd(tmp_path / "two.rrd")
+    centers = dict(_temporal(data["/events/ball"]["Ellipses2D:centers"]))
+    for t in (10_500, 10_750):  # a row of one flight: both balls drawn, each where its track puts it
+        expected = [[np.interp(t, t0, 10.0 + 0.004 * (t0 - 10_000)) + 0.5, 20.5],
+                    [np.interp(t, t1, 50.0 - 0.004 * (t1 - 10_000)) + 0.5, 35.5]]
+        np.testing.assert_allclose(sorted(centers[t], key=lambda c: c[1]), expected, rtol=1e-6)
+    assert len(centers[13_000]) == 1  # the second ball's flight has ended
+    # each window's axis is drawn on its own ball (the flight column), not on the first one in view
+    origins = [np.array(v) for _, v in _temporal(data["/events/spin_axis"]["Arrows2D:origins"])]
+    assert [round(o[0][1]) for o in origins] == [36, 20]  # window 0 on flight 1 (cy 35), window 1 on flight 0
+
+
 def test_spin_series_and_axis(written):
     _, _, _, data = written
     mid = (SPIN["t_start_us"] + SPIN["t_end_us"]) // 2

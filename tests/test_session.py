@@ -256,7 +256,7 @@ def test_reader_of_a_closed_session_sees_later_updates(tmp_path):
     assert list(r.track()["t_us"]) == [100, 101]
 
 
-def test_spin_table_of_an_older_session_reads_missing_uncertainty_as_nan(tmp_path):
+def test_spin_table_of_an_older_session_reads_missing_columns_as_not_known(tmp_path):
     spin = {"t_start_us": [0, 1000, 2000], "t_end_us": [1000, 2000, 3000], "axis": [[0, 0, 1]] * 3,
             "omega_rad_s": [628.3] * 3, "rps": [100.0] * 3, "velocity_px_s": [[0, 0]] * 3,
             "confidence": [0.9] * 3, "axis_sigma_deg": [0.5] * 3, "rps_sigma_pct": [0.7] * 3}
@@ -265,9 +265,17 @@ def test_spin_table_of_an_older_session_reads_missing_uncertainty_as_nan(tmp_pat
     # a session written before the uncertainty columns existed has no such arrays
     root = zarr.open_group(str(tmp_path / "s"), mode="r+", use_consolidated=False)
     del root["spin"]["axis_sigma_deg"]
+    del root["spin"]["flight"]
     sp = S.open_session(tmp_path / "s").spin()
     assert sp["axis_sigma_deg"].shape == (3,) and np.isnan(sp["axis_sigma_deg"]).all()
     assert np.allclose(sp["rps_sigma_pct"], 0.7) and np.allclose(sp["rps"], 100.0)
+    assert list(sp["flight"]) == [-1, -1, -1]  # not known (not flight 0)
+    # estimates appended to it by this version: the columns come back, the older rows stay unknown
+    with S.update_session(tmp_path / "s") as w:
+        w.append_spin({**{k: v[:1] for k, v in spin.items()}, "flight": [4]})
+    sp = S.open_session(tmp_path / "s").spin()
+    assert list(sp["flight"]) == [-1, -1, -1, 4]
+    assert np.isnan(sp["axis_sigma_deg"][:3]).all() and sp["axis_sigma_deg"][3] == 0.5
 
 
 def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkeypatch):

@@ -59,14 +59,14 @@ class LiveAnalysis:
         The event camera's intrinsics (e.g. ``calib.stereo.CameraPair.event`` of the
         calibration): spin then models the lens (``spin.estimate_spin``'s ``camera``); None:
         orthographic.
-    flicker_hz : float, optional
+    flicker_hz : float or "auto", optional
         Lights flickering at this frequency: their events are left out of detection
         (``detect.BallTracker``'s ``flicker_hz``).
     """
 
     def __init__(self, width: int, height: int, *, review=None, spin_every_us: int = 100_000,
                  window_us: int = 2000, min_events: int = 1500, max_events: int = 20000,
-                 max_queue: int = 16, keep_us: int = 200_000, camera=None, flicker_hz: float | None = None):
+                 max_queue: int = 16, keep_us: int = 200_000, camera=None, flicker_hz: float | str | None = None):
         self.tracker = BallTracker(width, height, flicker_hz=flicker_hz)
         self.camera = camera
         self.review = review

@@ -64,7 +64,7 @@ class RecordSettings:
         ``EVT3`` or ``EVT21`` (None: EVT3).
     usb_transfers : int or None
         USB requests kept in flight on the data endpoint (None: ``Camera.n_transfers``).
-    flicker_hz : float or None
+    flicker_hz : float, "auto" or None
         Lights flickering at this frequency: the live tracker leaves their events out.
     erc_ev_s : float or None
         Event-rate cap, ev/s.
@@ -103,7 +103,7 @@ class RecordSettings:
     sync_mode: str | None = None
     event_format: str | None = None
     usb_transfers: int | None = None
-    flicker_hz: float | None = None
+    flicker_hz: float | str | None = None
     trigger_in: bool = True
     gopro: object | None = None
     gopro_settings: dict = field(default_factory=dict)

@@ -37,6 +37,7 @@ from capture.pipeline.ball_view import ball_view
 from capture.review import write_rrd
 from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
+from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -212,6 +213,13 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
                                                                      side="right")) - 1), None))
 
 
+def session_flicker_hz(session_path) -> float | None:
+    """The frequency (Hz) at which lights flicker in a stored session's first events
+    (:func:`detect.flicker.find_flicker_hz`), or None."""
+    s = open_session(session_path)
+    return find_flicker_hz(s.events_range(0, min(s.n_events, FLICKER_SAMPLE_EVENTS)), s.width, s.height)
+
+
 def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int, np.ndarray]]:
     """Frames of a session in event-sensor geometry: ``(t_us, image)``, lazily.
 
@@ -290,7 +298,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
         for fid in np.unique(final.flight).tolist():
             flights[fid].final = Track.concat([flights[fid].final, final.select(final.flight == fid)])
         for fid, fl in flights.items():
-            fl.ended = fid != tracker.active_flight
+            fl.ended = fid not in tracker.active_flights
 
     def assign(before_us):
         """Keep, per flight, the events near its ball among those before ``before_us`` (all: None)."""

@@ -35,6 +35,27 @@ _BALL_MARGIN = 1.25
 """Events within this many radii of the track's circle count as the ball's when thinning."""
 
 
+
+def _circles_at(track: Track, t_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The circles of every flight of ``track`` whose span holds each time of ``t_us`` (µs, shape
+    (N,); two balls in view at once give two): ``(circles (K, 3) cx, cy, r px in the order of the times,
+    lengths (N,) int64, the number of circles at each time)``."""
+    t_us = np.asarray(t_us, np.int64)
+    index, circles = [], []
+    for fid in track.flight_ids().tolist():
+        rows = track.select(track.flight == fid)
+        at = np.flatnonzero((t_us >= rows.t_us[0]) & (t_us <= rows.t_us[-1]))
+        t = t_us[at]
+        index.append(at)
+        circles.append(np.c_[np.interp(t, rows.t_us, rows.cx), np.interp(t, rows.t_us, rows.cy),
+                             np.interp(t, rows.t_us, rows.r)])
+    if not index:
+        return np.zeros((0, 3)), np.zeros(len(t_us), np.int64)
+    index = np.concatenate(index)
+    order = np.argsort(index, kind="stable")
+    return np.concatenate(circles)[order], np.bincount(index, minlength=len(t_us)).astype(np.int64)
+
+
 class ReviewError(Exception):
     """The review cannot be written (bad argument, unusable output path, ...)."""
 
@@ -229,11 +250,10 @@ class ReviewLogger:
         ids, first, last = self._ball_spans
         flights = ids[(first <= ev["t"][-1]) & (last >= ev["t"][0])]
         inside = np.zeros(len(ev), bool)
-        if len(flights) == 0:
-            return inside
-        cx, cy, r, valid = track.select(np.isin(track.flight, flights)).circles_at(ev["t"])
-        d2 = (ev["x"][valid] - cx[valid]) ** 2 + (ev["y"][valid] - cy[valid]) ** 2
-        inside[valid] = d2 <= (_BALL_MARGIN * r[valid]) ** 2
+        for fid in flights.tolist():  # (two balls in view at once: on either)
+            cx, cy, r, valid = track.select(track.flight == fid).circles_at(ev["t"])
+            d2 = (ev["x"][valid] - cx[valid]) ** 2 + (ev["y"][valid] - cy[valid]) ** 2
+            inside[valid] |= d2 <= (_BALL_MARGIN * r[valid]) ** 2
         return inside
 
     # track and spin --------------------------------------------------------------------------
@@ -245,9 +265,11 @@ class ReviewLogger:
         """
         if len(track) == 0:
             return
-        c = np.c_[track.cx, track.cy] + PIXEL_OFFSET
-        self.rec.send_columns(EVENTS_BALL, indexes=[time_column(track.t_us)],
-                              columns=rr.Ellipses2D.columns(centers=c, half_sizes=np.c_[track.r, track.r]))
+        t_us = np.unique(track.t_us)
+        circles, lengths = _circles_at(track, t_us)  # every ball in view at each row's time
+        c = circles[:, :2] + PIXEL_OFFSET
+        self.rec.send_columns(EVENTS_BALL, indexes=[time_column(t_us)], columns=rr.Ellipses2D.columns(
+            centers=c, half_sizes=circles[:, [2, 2]]).partition(lengths))
         self.rec.send_columns(PLOT_SPEED_IMAGE, indexes=[time_column(track.t_us)],
                               columns=rr.Scalars.columns(scalars=np.hypot(track.vx, track.vy)))
         self.stats.n_track_rows += len(track)
@@ -324,7 +346,7 @@ class ReviewLogger:
                               columns=rr.Arrows3D.columns(origins=-1.6 * axis, vectors=3.2 * axis, labels=labels,
                                                           colors=colors))
         if track is not None and len(track):
-            cx, cy, r, valid = track.circles_at(t)
+            cx, cy, r, valid = track.circles_at(t, cols["flight"])
             centre = np.c_[cx, cy] + PIXEL_OFFSET
             pole = np.where(axis[:, 2:3] <= 0, axis, -axis)  # the pole on the camera's side (camera: -Z)
             arrows = rr.Arrows2D.columns(origins=centre[valid], vectors=(axis[:, :2] * r[:, None])[valid],
@@ -413,12 +435,12 @@ class ReviewLogger:
         """Track circle at frame times ``t_us`` (µs, shape (N,)), mapped into the frame by
         ``event_to_frame`` (circles (N, 3) -> (N, 3), px); empty where the track has no ball."""
         t_us = np.asarray(t_us, np.int64)
-        cx, cy, r, valid = track.circles_at(t_us)
-        if not valid.any():
+        circles, lengths = _circles_at(track, t_us)
+        if not len(circles):
             return
-        mapped = np.asarray(event_to_frame(np.c_[cx[valid], cy[valid], r[valid]]), dtype=np.float64).reshape(-1, 3)
+        mapped = np.asarray(event_to_frame(circles), dtype=np.float64).reshape(-1, 3)
         cols = rr.Ellipses2D.columns(centers=mapped[:, :2] + PIXEL_OFFSET, half_sizes=mapped[:, [2, 2]])
-        self.rec.send_columns(FRAMES_BALL, indexes=[time_column(t_us)], columns=cols.partition(valid.astype(np.int64)))
+        self.rec.send_columns(FRAMES_BALL, indexes=[time_column(t_us)], columns=cols.partition(lengths))
 
     def frames_note(self, text: str, at_px: tuple[float, float]) -> None:
         """A note shown in the GoPro view at ``at_px`` (frame pixels; the label is centred there),
