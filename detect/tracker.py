@@ -84,8 +84,9 @@ player's head a third: second balls on the detection benchmark show 0.8-0.97).""
 
 SPLIT_MIN_SPEED_R_S = 25.0
 """A flight found only by telling a ball apart from what touches it, or found while another ball is
-tracked, must move at least this many radii per second (about 2.5 m/s for any ball): a round thing
-at rest against a body (a head on a player, a ball held in a hand) is no flight."""
+tracked, must move at least this many radii per second (2.5 m/s for a ball of 10 cm radius, a
+volleyball or a soccer ball): a round thing at rest against a body (a head on a player, a ball held
+in a hand) is no flight."""
 
 
 def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 12,
@@ -145,11 +146,13 @@ def _velocity(a, b) -> tuple[float, float]:
     return (b[1].cx - a[1].cx) / dt_s, (b[1].cy - a[1].cy) / dt_s
 
 
-def _continues(entry, m: int, fit: CircleFit) -> bool:
-    """Whether ``fit`` (a window centred at ``m`` µs) continues the chain whose last detection is
-    ``entry`` ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size."""
-    tm, tf, tv = entry[:3]
-    if m <= tm:  # (a window older than the chain's last detection continues nothing)
+def _continues(chain, m: int, fit: CircleFit) -> bool:
+    """Whether ``fit`` (a window centred at ``m`` µs) continues ``chain``, whose last detection is
+    ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size."""
+    tm, tf, tv = chain[-1][:3]
+    # an older window continues nothing; one of the same time (a hit's seeds, then the search in the
+    # same slice) continues a chain that already has a velocity
+    if m < tm or (m == tm and len(chain) == 1):
         return False
     dt_s = (m - tm) * 1e-6
     px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
@@ -735,7 +738,7 @@ class BallTracker:
         self._chains = [c for c in self._chains if m - c[-1][0] <= 2 * span]  # stale chains end
         extended = []
         for fit, v0, evs, split, key in kept:
-            chain = min((c for c in self._chains if all(c is not e for e in extended) and _continues(c[-1], m, fit)),
+            chain = min((c for c in self._chains if all(c is not e for e in extended) and _continues(c, m, fit)),
                         key=lambda c: np.hypot(fit.cx - c[-1][1].cx, fit.cy - c[-1][1].cy), default=None)
             if chain is None:
                 if len(self._chains) >= _MAX_CHAINS:
