@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import sim
-from capture.pipeline.live import LiveAnalysis
+from capture.pipeline.live import LiveAnalysis, LiveState
+from capture.pipeline.record import ball_status
 
 
 @pytest.fixture(scope="module")
@@ -43,3 +44,24 @@ def test_live_analysis_skips_instead_of_blocking(flight):
     live.close(timeout_s=120)
     assert live.state.skipped_events > 0
     assert live.state.skipped_events + live.state.analysed_events == len(flight.events)
+
+
+def test_live_analysis_follows_two_balls_at_once(two_balls_at_once):
+    from sim.esim import merge
+
+    a, b = two_balls_at_once
+    ev = merge(a.events, b.events)
+    batches = [ev[i:i + 20_000] for i in range(0, len(ev), 20_000)]
+    live = LiveAnalysis(a.width, a.height, spin_every_us=10 ** 9, max_queue=len(batches))
+    for batch in batches:
+        live.offer(batch)
+    live.close(timeout_s=120)
+    assert live.error is None and len(live.state.balls) == 2  # both in view at the last rows out
+    for rec in (a, b):
+        truth = rec.truth_track(visible_only=False)
+        near = [np.hypot(cx - np.interp(t, truth.t_us, truth.cx), cy - np.interp(t, truth.t_us, truth.cy))
+                for t, cx, cy, _ in live.state.balls]
+        assert min(near) < 2.0  # one of them is this ball
+    assert ball_status(live.state).startswith("2 balls (")  # the recorder's status line shows both
+    assert ball_status(LiveState()) == "no ball"
+    assert ball_status(LiveState(ball=(5, 10.2, 20.7, 3.0))) == "ball (10,21) r 3"

@@ -184,10 +184,11 @@ def test_the_status_line_shows_drops_and_time_jumps_as_they_happen(tmp_path, cap
     from types import SimpleNamespace
 
     from capture import evk
+    from capture.pipeline.live import LiveState
     from capture.pipeline.record import RecordSettings, _Status
 
     progress = evk.RecordStats(raw_path=tmp_path / "events.raw", overflows=3, dropped_bytes=1_200_000, time_jumps=2)
-    live = SimpleNamespace(state=SimpleNamespace(ball=None, spin=None, skipped_events=0))
+    live = SimpleNamespace(state=LiveState())
     status = _Status(RecordSettings(out=tmp_path), {"events": 0}, live, threading.Event(), period_s=0.01,
                      tick_s=0.005, progress=progress)
     status.start()

@@ -26,6 +26,9 @@ class LiveState:
     ----------
     ball : tuple or None
         Last ball circle ``(t_us, cx, cy, r)`` in px, or None.
+    balls : tuple
+        The last circle ``(t_us, cx, cy, r)`` of each ball being tracked (two balls in view at
+        once: two), oldest flight first.
     spin : object or None
         Last spin estimate (``spin.SpinEstimate``), or None.
     analysed_events, skipped_events : int
@@ -33,6 +36,7 @@ class LiveState:
     """
 
     ball: tuple | None = None
+    balls: tuple = ()
     spin: object | None = None
     analysed_events: int = 0
     skipped_events: int = 0
@@ -77,7 +81,7 @@ class LiveAnalysis:
         self._queue: queue.Queue = queue.Queue(maxsize=max_queue)
         self._recent: list[np.ndarray] = []
         self._keep_us = keep_us
-        self._rows = Track.empty()
+        self._last_circle: dict[int, tuple] = {}  # flight -> its newest (t_us, cx, cy, r)
         self._last_spin_t = -(1 << 62)
         self._thread = threading.Thread(target=self._run, name="live-analysis", daemon=True)
         self._thread.start()
@@ -123,6 +127,12 @@ class LiveAnalysis:
         if not len(batch):
             return
         rows = self.tracker.update(batch)
+        for k in range(len(rows)):  # the newest circle of each ball being tracked
+            self._last_circle[int(rows.flight[k])] = (int(rows.t_us[k]), float(rows.cx[k]), float(rows.cy[k]),
+                                                      float(rows.r[k]))
+        active = self.tracker.active_flights
+        self._last_circle = {i: c for i, c in self._last_circle.items() if i in active}
+        self.state.balls = tuple(self._last_circle[i] for i in active if i in self._last_circle)
         self.state.analysed_events += len(batch)
         t_now = int(batch["t"][-1])
         self._recent.append(batch)

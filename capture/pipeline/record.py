@@ -131,6 +131,15 @@ class RecordResult:
     error: str | None = None
 
 
+def ball_status(state) -> str:
+    """The status line's ball part from a :class:`capture.pipeline.live.LiveState`: the newest
+    circle, or each ball's where two or more are tracked at once."""
+    if len(state.balls) > 1:
+        return f"{len(state.balls)} balls " + ", ".join(f"({b[1]:.0f},{b[2]:.0f}) r {b[3]:.0f}" for b in state.balls)
+    b = state.ball
+    return f"ball ({b[1]:.0f},{b[2]:.0f}) r {b[3]:.0f}" if b else "no ball"
+
+
 class _Status(threading.Thread):
     """Every ``tick_s`` commits the store if due (``flush``, also while no data arrives); every
     ``period_s`` prints a status line and stops the recording when the disk is nearly full."""
@@ -177,7 +186,7 @@ class _Status(threading.Thread):
                          else "drops 0  ") + (f"time jumps {pr.time_jumps}  " if pr.time_jumps else "")
             line += f"disk {free / 2**30:.1f} GiB free  "
             st = self.live.state
-            line += (f"ball ({st.ball[1]:.0f},{st.ball[2]:.0f}) r {st.ball[3]:.0f}  " if st.ball else "no ball  ")
+            line += ball_status(st) + "  "
             if st.spin is not None:
                 line += f"spin {st.spin.rps:.1f} rps (conf {st.spin.confidence:.2f})  "
             if st.skipped_events:
