@@ -181,6 +181,12 @@ number of the window (the track's: two balls in view at once give windows of two
 same time; -1 where not known: the flight is then the one whose track rows span the window)."""
 
 
+def missing_value(name: str, dtype) -> float | int:
+    """What a table column holds where it was not given (rows written before it existed, by an
+    older version): NaN for floats (not measured), -1 for ``flight`` (not known), else 0."""
+    return np.nan if np.dtype(dtype).kind == "f" else (-1 if name == "flight" else 0)
+
+
 def empty_table(columns: Mapping[str, tuple[str, tuple]], n: int = 0) -> dict[str, np.ndarray]:
     """Zero-filled table of ``n`` rows with the given columns (e.g. :data:`SPIN_COLUMNS`)."""
     return {k: np.zeros((n, *shape), dtype) for k, (dtype, shape) in columns.items()}
@@ -216,7 +222,7 @@ def spin_table(spin) -> dict[str, np.ndarray]:
     KeyError
         A column other than the uncertainties is missing.
     """
-    optional = {"axis_sigma_deg": np.nan, "rps_sigma_pct": np.nan, "rps_lag_pct": np.nan, "flight": -1}
+    optional = ("axis_sigma_deg", "rps_sigma_pct", "rps_lag_pct", "flight")
     if isinstance(spin, Mapping):
         rows = {k: np.asarray(spin[k]) for k in SPIN_COLUMNS if k in spin or k not in optional}
     else:
@@ -224,8 +230,8 @@ def spin_table(spin) -> dict[str, np.ndarray]:
         rows = {k: [getattr(s, k) for s in items] for k in SPIN_COLUMNS
                 if k not in optional or all(hasattr(s, k) for s in items)}
     n = len(rows["t_start_us"])
-    for k, missing in optional.items():
-        rows.setdefault(k, np.full(n, missing))
+    for k in optional:
+        rows.setdefault(k, np.full(n, missing_value(k, SPIN_COLUMNS[k][0])))
     return {k: np.asarray(rows[k], dtype=dtype).reshape(n, *shape) for k, (dtype, shape) in SPIN_COLUMNS.items()}
 
 

@@ -69,7 +69,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.codecs.numcodecs import Delta
 
 from capture.events import (EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table,
-                            in_order_mask, spin_table)
+                            in_order_mask, missing_value, spin_table)
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
@@ -204,12 +204,6 @@ _COLUMN_WRITERS = ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_pr
 GIL between codec calls (measured on 2 cores: 39-42 Mev/s stored with two, 29-36 with four)."""
 
 
-def _missing(name: str, dtype) -> float | int:
-    """What a table column holds in rows written before it existed (by an older version): NaN for
-    floats (not measured), -1 for ``flight`` (not known), else 0."""
-    return np.nan if np.dtype(dtype).kind == "f" else (-1 if name == "flight" else 0)
-
-
 def _table_group(parent: zarr.Group, name: str) -> zarr.Group:
     """A table's group; a new one is created with ``n_committed = 0`` in its first metadata write."""
     if name in parent:
@@ -242,7 +236,7 @@ class _Table:
                 filters, compressors = _codecs(name, dtype)
                 self.arrays[name] = group.create_array(
                     name, shape=(0, *tail), chunks=(chunk, *tail), dtype=dtype,
-                    filters=filters, compressors=compressors, fill_value=_missing(name, dtype))
+                    filters=filters, compressors=compressors, fill_value=missing_value(name, dtype))
         if "n_committed" not in group.attrs:  # a table made by an older version
             group.attrs["n_committed"] = 0
         self.n = int(group.attrs["n_committed"])
@@ -1236,11 +1230,11 @@ class Session:
 
     def _table(self, name: str, columns) -> dict[str, np.ndarray]:
         """The table's columns; a column the store lacks (written by an older version) reads as
-        :func:`_missing` says, one per row."""
+        :func:`capture.events.missing_value` says, one per row."""
         n = self._n(name)
         full = empty_table(columns, n)
         for k, (dtype, _) in columns.items():
-            full[k][...] = _missing(k, dtype)
+            full[k][...] = missing_value(k, dtype)
         return {k: (v if v is not None else full[k]) for k, v in self._read(name, columns).items()}
 
 

@@ -241,7 +241,7 @@ class _Flight:
         self.outliers = 0  # fits in a row outside the gate
         self.outlier_fits: list = []  # those fits (a hit, a bounce?), as chain entries
         self.n_final = 0  # updates whose rows are final
-        self.zone = (math.nan,) * 4  # (x0, x1, y0, y1) px: where the ball and its surround were this slice
+        self.near = np.zeros(0, np.intp)  # indices of this slice's events around the ball (its surround too)
         self.circle = (math.nan, math.nan, 0.0)  # predicted (cx, cy, r) px this slice
 
 
@@ -331,7 +331,7 @@ class BallTracker:
         self._search_stride = 1  # slices from the start of one search window to the next
         self._search_next_us = 0  # while balls are tracked, the next search window starts here
         self._hot = HotPixelMap(width, height) if hot_pixels else None
-        self._probe: list[np.ndarray] | None = [] if flicker_hz == "auto" else None  # events held meanwhile
+        self._probe: list[np.ndarray] | None = [] if flicker_hz == "auto" else None  # (non-empty) batches held meanwhile
         self.flicker_hz = None if flicker_hz in (None, "auto") else float(flicker_hz)
         """Frequency (Hz) of the flicker left out of detection; None: none (or not known yet)."""
         self._flicker = FlickerFilter(width, height, self.flicker_hz) if self.flicker_hz is not None else None
@@ -369,8 +369,9 @@ class BallTracker:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
         self._check(events)
         if self._probe is not None:  # flicker_hz="auto": hold the events until the frequency is found
-            self._probe.append(events)
-            held = [e for e in self._probe if len(e)]
+            if len(events):
+                self._probe.append(events)
+            held = self._probe
             if (not held or int(held[-1]["t"][-1]) - int(held[0]["t"][0]) < FLICKER_SAMPLE_US) \
                     and sum(map(len, held)) < FLICKER_SAMPLE_EVENTS:
                 return self._take_rows()
@@ -386,7 +387,7 @@ class BallTracker:
 
     def _end_probe(self) -> np.ndarray:
         """Find the flicker frequency in the events held (``flicker_hz="auto"``); returns them."""
-        events = concatenate([e for e in self._probe if len(e)]) if self._probe else np.zeros(0, EVENT_DTYPE)
+        events = concatenate(self._probe)
         self._probe = None
         self.flicker_hz = find_flicker_hz(events, self.width, self.height)
         if self.flicker_hz is not None:
@@ -522,7 +523,7 @@ class BallTracker:
                 return
             keep = np.ones(len(t), bool)
             for fl in self._flights:
-                keep[_in_box(x, y, *fl.zone, self.width, self.height)] = False
+                keep[fl.near] = False
             keep = np.flatnonzero(keep)
             t, x, y = t.take(keep), x.take(keep), y.take(keep)
         if self._hot is not None:
@@ -612,8 +613,8 @@ class BallTracker:
         around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
         hx = around + abs(vx) * (s1 - start) * 0.5e-6
         hy = around + abs(vy) * (s1 - start) * 0.5e-6
-        fl.zone, fl.circle = (cx - hx, cx + hx, cy - hy, cy + hy), (cx, cy, r)
-        box = _in_box(x, y, *fl.zone, self.width, self.height)
+        box = _in_box(x, y, cx - hx, cx + hx, cy - hy, cy + hy, self.width, self.height)
+        fl.near, fl.circle = box, (cx, cy, r)
         if self._hot is not None:
             box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
         # the window lasts as long as the ball needs to fire track_events at its recent rate, so
