@@ -139,6 +139,11 @@ for the same (not only one that overlaps it by 30 %): parts of a player come and
 _MAX_CHAINS = 4
 """Chains of detections not yet confirmed as flights, at most."""
 
+_END_PART_MIN_US = 200
+_END_PART_MIN_EVENTS = 60
+"""A tracking window's first and last parts (:meth:`BallTracker._track_ends`) last at least this long
+(µs) and hold at least this many of the ball's events (at its recent rate)."""
+
 
 def _velocity(a, b) -> tuple[float, float]:
     """Image velocity (px/s) from detection ``a`` to ``b``, each ``(t_us, CircleFit, ...)``."""
@@ -620,6 +625,7 @@ class BallTracker:
         # the window lasts as long as the ball needs to fire track_events at its recent rate, so
         # that a ball lost from the prediction is missed after that time, not after max_window_us
         span = self.track_events / max(fl.ball_rate, 1e-9)
+        slice_events = (t, x, y)
         win = fl.window.join(t.take(box), x.take(box), y.take(box), s0, s1,
                              min(int(span), self.max_window_us))
         if win is None:
@@ -637,32 +643,115 @@ class BallTracker:
             # flickering light, a body behind it) and the window is no measurement
             fit = None
         if fit is None or fit.score < self.min_score:
-            fl.misses += 1
-            if fl.misses >= self.max_misses:
-                self._end_flight(fl)
+            if not self._track_ends(fl, (t, x, y, start), slice_events, s1, around, r_rng):
+                fl.misses += 1
+                if fl.misses >= self.max_misses:
+                    self._end_flight(fl)
             return
-        sigma_r = 1.5 * fit.sigma_px
-        d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
-        dist = np.hypot(fit.cx - cx, fit.cy - cy)
-        if (d2 <= self.gate_chi2 or dist <= 0.1 * r + 1.0) and abs(fit.r - r) <= 0.25 * r + 2.0:
-            kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, sigma_r)
+        if self._judge(fl, m, fit, (t[sel], x[sel], y[sel])):
             fl.ball_rate = 0.5 * fl.ball_rate + 0.5 * int(sel.sum()) / max(s1 - start, 1)
+
+    def _judge(self, fl: _Flight, m: int, fit: CircleFit, events) -> bool:
+        """Update flight ``fl`` with ``fit`` (a window centred at ``m`` µs, its ``events`` ``(t, x, y)``)
+        where the fit lies in the gate around the prediction, and say so; else count it as an
+        outlier (two in a row: a hit or a bounce, the flight ends and its outliers seed the next)."""
+        if self._in_gate(fl.kf, m, fit):
+            fl.kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, 1.5 * fit.sigma_px)
             fl.scores.append(fit.score)
             self._emit(fl, m)
             fl.misses = fl.outliers = 0
             fl.outlier_fits = []
-        else:
-            fl.outliers += 1
-            fl.misses += 1
-            ts, xs, ys = t[sel], x[sel], y[sel]
-            v_own = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
-            fl.outlier_fits.append((m, fit, v_own, (ts, xs, ys), False))
-            if fl.outliers >= 2 or fl.misses >= self.max_misses:
-                # hit or bounce: the outlying fits are the next flight's first detections
-                seeds = fl.outlier_fits[-fl.outliers:] if fl.outliers >= 2 else []
-                self._end_flight(fl)
-                if seeds:  # (the oldest chain makes room)
-                    self._chains = [*self._chains[-(_MAX_CHAINS - 1):], seeds]
+            return True
+        fl.outliers += 1
+        fl.misses += 1
+        ts, xs, ys = events
+        # the velocity since the outlier before (a ball bounced off a wall), else the events' own
+        prev = fl.outlier_fits[-1] if fl.outlier_fits else None
+        v_own = (_velocity(prev, (m, fit)) if prev is not None and prev[0] < m
+                 else estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts))
+        fl.outlier_fits.append((m, fit, v_own, (ts, xs, ys), False))
+        if fl.outliers >= 2 or fl.misses >= self.max_misses:
+            # hit or bounce: the outlying fits are the next flight's first detections
+            seeds = fl.outlier_fits[-fl.outliers:] if fl.outliers >= 2 else []
+            self._end_flight(fl)
+            if seeds:  # (the oldest chain makes room)
+                self._chains = [*self._chains[-(_MAX_CHAINS - 1):], seeds]
+        return False
+
+    def _in_gate(self, kf: CircleKalman, m: int, fit: CircleFit) -> bool:
+        """Whether ``fit`` (at ``m`` µs) lies in the gate around the prediction of ``kf`` (Mahalanobis,
+        or within a tenth of the radius) with about its size."""
+        cx, cy, r = kf.predict(m)[0][[0, 1, 6]]
+        d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
+        return bool((d2 <= self.gate_chi2 or np.hypot(fit.cx - cx, fit.cy - cy) <= 0.1 * r + 1.0)
+                    and abs(fit.r - r) <= 0.25 * r + 2.0)
+
+    def _track_ends(self, fl: _Flight, window, slice_events, s1: int, around: float, r_rng) -> bool:
+        """Measure the ball on the first and the last part of a tracking window whose fit failed, each
+        so short that the ball moves about a pixel in it; whether the flight took a measurement.
+
+        A bounce or a hit inside the window changes the velocity: compensated with the predicted one,
+        the ball's events smear and the window's fit fails (or looks like clutter).  The first part
+        (of ``window``, ``(t, x, y, start_us)``) still follows the prediction: fitted with the
+        predicted velocity within ``around`` px of it, it updates the flight if it lies in the gate.
+        The last part shows where the ball is now: it is sought uncompensated among the slice's
+        events (``slice_events``, ``(t, x, y)``) as far from the prediction as a bounce inside the
+        window could take it (or from the last outlier, as far as since then), with the flight's
+        size and its rim on most sides; it updates the flight or counts as an outlier, so that two
+        windows after a bounce start the next flight from their last parts.  Not while another
+        tracked ball is near (two balls crossing: the other is what failed the fit)."""
+        t, x, y, start = window
+        cx, cy, vx, vy, _, _, r = fl.kf.predict(max(start, fl.kf.t_us))[0]
+        speed = float(np.hypot(vx, vy))
+        for o in self._flights:
+            ox, oy, ovx, ovy, _, _, o_r = o.kf.predict(max(start, o.kf.t_us))[0]
+            closing = np.hypot(vx - ovx, vy - ovy) * (s1 - start) * 1e-6
+            if o is not fl and np.hypot(cx - ox, cy - oy) < around + 1.5 * o_r + 2.0 + closing:
+                return False
+        part_us = int(np.clip(1e6 / max(speed, 1.0), _END_PART_MIN_US, (s1 - start) // 3))
+        if part_us < _END_PART_MIN_US or fl.ball_rate * part_us < _END_PART_MIN_EVENTS:
+            return False
+        # the first part: the ball as predicted, before any change of motion
+        took = False
+        i0, i1 = np.searchsorted(t, (start, start + part_us))
+        tm = max(start + part_us // 2, fl.kf.t_us)
+        pred = fl.kf.predict(tm)[0]
+        ts, xs, ys = t[i0:i1], x[i0:i1], y[i0:i1]
+        dt_s = (ts - tm) * 1e-6
+        dx = xs - pred[2] * dt_s - pred[0]
+        dy = ys - pred[3] * dt_s - pred[1]
+        sel = dx * dx + dy * dy < around * around
+        if sel.sum() >= _END_PART_MIN_EVENTS:
+            fit = self._fit(ts[sel], xs[sel], ys[sel], tm, (pred[0], pred[1]), (pred[2], pred[3]), r_rng)
+            if (fit is not None and fit.score >= self.min_score
+                    and fit.r + np.hypot(fit.cx - pred[0], fit.cy - pred[1]) <= around - 0.5
+                    and _surrounded(dx + pred[0], dy + pred[1], fit) <= MAX_SURROUNDED_TRACKING
+                    and self._in_gate(fl.kf, tm, fit)):
+                took = self._judge(fl, tm, fit, (ts[sel], xs[sel], ys[sel]))
+        # the last part: where the ball is now, however its motion changed
+        tm = max(s1 - part_us // 2, fl.kf.t_us)
+        pred = fl.kf.predict(tm)[0]
+        last = fl.outlier_fits[-1] if fl.outlier_fits else None
+        if last is None:  # a bounce inside this window: at most twice the speed since its start
+            ox, oy, half = pred[0], pred[1], around + 2.0 * speed * (s1 - start) * 1e-6
+        else:  # since the last outlier, at about the speed before
+            ox, oy, half = last[1].cx, last[1].cy, around + 1.5 * speed * (tm - last[0]) * 1e-6
+        t, x, y = slice_events
+        i0, i1 = np.searchsorted(t, (s1 - part_us, s1))
+        ts, xs, ys = t[i0:i1], x[i0:i1], y[i0:i1]
+        sel = _in_box(xs, ys, ox - half, ox + half, oy - half, oy + half, self.width, self.height)
+        if self._hot is not None:
+            sel = sel[self._hot.keep(ys.take(sel) * self.width + xs.take(sel))]
+        if len(sel) < _END_PART_MIN_EVENTS:
+            return took
+        ts, xs, ys = ts.take(sel), xs.take(sel), ys.take(sel)
+        fit = self._fit(ts, xs, ys, tm, None, (0.0, 0.0), (max(r_rng[0], 0.8 * r), min(r_rng[1], 1.25 * r)))
+        if (fit is None or fit.score < self.min_score or fit.coverage < SPLIT_MIN_COVERAGE
+                or max(abs(fit.cx - ox), abs(fit.cy - oy)) + fit.r > half - 0.5
+                or _surrounded(xs, ys, fit) > MAX_SURROUNDED_TRACKING):
+            return took
+        self._judge(fl, tm, fit, (ts, xs, ys))
+        return True
 
     def _end_duplicates(self) -> None:
         """End the younger of two flights that have come to follow the same ball (after two balls

@@ -232,6 +232,15 @@ def test_bounce_splits_the_flight():
     assert len(ids) == 2
     before, after = tr.select(tr.flight == ids[0]), tr.select(tr.flight == ids[1])
     assert np.median(before.vy) > 2500 and np.median(after.vy) < -2500
+    # the 2 ms window holding the bounce is measured on its first and last parts (a few hundred µs
+    # each): the first flight reaches the bounce, the next starts within a slice of it (6 ms later
+    # when the window's smeared fit was only a miss)
+    assert before.t_us.max() >= 40_000 and after.t_us.min() <= 42_000
+    for part, v in ((before, (2500.0, 3000.0)), (after, (2500.0, -3000.0))):
+        c0 = (60.0, 60.0) if part is before else (160.0, 180.0)
+        t0 = 0 if part is before else 40_000
+        cx, cy = _truth(part.t_us, c0, v, t0)
+        assert np.max(np.hypot(part.cx - cx, part.cy - cy)) < 1.5
 
 
 def test_streaming_equals_batch():
