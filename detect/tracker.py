@@ -151,17 +151,31 @@ def _velocity(a, b) -> tuple[float, float]:
     return (b[1].cx - a[1].cx) / dt_s, (b[1].cy - a[1].cy) / dt_s
 
 
-def _continues(chain, m: int, fit: CircleFit) -> bool:
+def _continues(chain, m: int, fit: CircleFit, width: int, height: int) -> bool:
     """Whether ``fit`` (a window centred at ``m`` µs) continues ``chain``, whose last detection is
-    ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size."""
+    ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size.
+
+    A chain of one detection of a ball coming in over the sensor's border (its circle crosses the
+    border of a ``width`` x ``height`` sensor) is continued by a detection of the same size farther
+    inside, within three radii: that detection's velocity came from the centroid of the ball's
+    visible part, which moves at another speed than the ball."""
     tm, tf, tv = chain[-1][:3]
     # an older window continues nothing; one of the same time (a hit's seeds, then the search in the
     # same slice) continues a chain that already has a velocity
-    if m < tm or (m == tm and len(chain) == 1):
+    if m < tm or (m == tm and len(chain) == 1) or abs(fit.r / tf.r - 1.0) > 0.25:
         return False
     dt_s = (m - tm) * 1e-6
     px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
-    return bool(np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0 and abs(fit.r / tf.r - 1.0) <= 0.25)
+    if np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0:
+        return True
+    depth, depth0 = _depth_px(fit, width, height), _depth_px(tf, width, height)
+    return bool(len(chain) == 1 and depth0 < 0 and depth > depth0 + 1.0
+                and np.hypot(fit.cx - tf.cx, fit.cy - tf.cy) <= 3.0 * tf.r)
+
+
+def _depth_px(fit: CircleFit, width: int, height: int) -> float:
+    """How far circle ``fit`` lies inside a ``width`` x ``height`` sensor, px (negative: it crosses the border)."""
+    return min(fit.cx - fit.r, fit.cy - fit.r, width - 1 - fit.cx - fit.r, height - 1 - fit.cy - fit.r)
 
 
 def _overlap(fit: CircleFit, circle: tuple[float, float, float]) -> bool:
@@ -499,27 +513,33 @@ class BallTracker:
                 ev, t = pieces[0]
             else:
                 ev, t = concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
-            self._process_block(ev, t, b0)
+            self._process_block(ev, t, b0, end_us=int(t[-1]) + 1 if final and not rest and len(t) else None)
             self._t_processed = b1
 
-    def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int) -> None:
+    def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int, end_us: int | None = None) -> None:
+        """The slices of block ``[b0, b0 + block_us)``; with ``end_us`` (the stream's end: its last event
+        + 1 µs), its last slice ends there and the tracking windows being joined end with it (no row
+        is stamped after the stream's last event)."""
         x = ev["x"].astype(np.int32)
         y = ev["y"].astype(np.int32)
         if self._hot is not None and (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
             self._hot.update(y * self.width + x)
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
+        if end_us is not None:
+            bounds = np.append(bounds[bounds < end_us], end_us)
         idx = np.searchsorted(t, bounds, side="left")
         for k in range(len(bounds) - 1):
             s0, s1 = int(bounds[k]), int(bounds[k + 1])
             self._frames_until((s0 + s1) // 2)
             i0, i1 = idx[k], idx[k + 1]
-            self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], s0, s1)
+            self._process_slice(t[i0:i1], x[i0:i1], y[i0:i1], s0, s1, last=end_us is not None and s1 == end_us)
 
-    def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, s0: int, s1: int) -> None:
+    def _process_slice(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, s0: int, s1: int,
+                       last: bool = False) -> None:
         """One slice ``[s0, s1)``'s events (hot pixels not yet removed: tracking removes them from
         the few events near each ball only)."""
         for fl in list(self._flights):
-            self._track_slice(fl, t, x, y, s0, s1)
+            self._track_slice(fl, t, x, y, s0, s1, last)
         self._end_duplicates()
         if self._flights:
             # while balls are tracked, another is searched for among the events away from them, in
@@ -603,7 +623,7 @@ class BallTracker:
         found = [f for f in found if not any(_inside(f[0], g[0]) for g in found if g is not f)]
         return max(found, key=lambda f: f[0].score, default=best)
 
-    def _track_slice(self, fl: _Flight, t, x, y, s0: int, s1: int) -> None:
+    def _track_slice(self, fl: _Flight, t, x, y, s0: int, s1: int, last: bool = False) -> None:
         kf = fl.kf
         start = s0 if fl.window.start_us is None else fl.window.start_us
         m = max((start + s1) // 2, kf.t_us)  # a frame may have updated the filter inside the window
@@ -627,7 +647,7 @@ class BallTracker:
         span = self.track_events / max(fl.ball_rate, 1e-9)
         slice_events = (t, x, y)
         win = fl.window.join(t.take(box), x.take(box), y.take(box), s0, s1,
-                             min(int(span), self.max_window_us))
+                             0 if last else min(int(span), self.max_window_us))
         if win is None:
             return
         t, x, y, start = win
@@ -828,7 +848,8 @@ class BallTracker:
         self._chains = [c for c in self._chains if m - c[-1][0] <= 2 * span]  # stale chains end
         extended = []
         for fit, v0, evs, split, key in kept:
-            chain = min((c for c in self._chains if all(c is not e for e in extended) and _continues(c, m, fit)),
+            chain = min((c for c in self._chains if all(c is not e for e in extended)
+                                                    and _continues(c, m, fit, self.width, self.height)),
                         key=lambda c: np.hypot(fit.cx - c[-1][1].cx, fit.cy - c[-1][1].cy), default=None)
             if chain is None:
                 if len(self._chains) >= _MAX_CHAINS:

@@ -98,7 +98,7 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     n_events : int, optional
         Stop the ball simulation at this many events.
     track_dt_us : int
-        Spacing (µs) of the ground-truth circle samples.
+        Spacing (µs) of the ground-truth circle samples (the last lies at the recording's end).
     hits : sequence of dict
         Hits or bounces, each ``{"t_s", "velocity_px_s", "rps", "axis"}``: from ``t_s``
         (s after ``t0_us``) the ball flies on with that image velocity and spin.
@@ -200,6 +200,7 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     ev = merge(ev, noise)
     # ground-truth circle
     t_us = np.arange(t0_us, t_end_us, int(track_dt_us), dtype=np.int64)
+    t_us = np.append(t_us, t_end_us) if t_us[-1] < t_end_us else t_us  # to the recording's end
     ts = (t_us - t0_us) * 1e-6
     circ = ball.circle(cam, ts)
     vel = ball.image_velocity(cam, ts)

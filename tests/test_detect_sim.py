@@ -184,6 +184,23 @@ def test_two_balls_in_view_at_once_are_tracked_as_two_flights(two_balls_at_once)
     assert min(pa.t_us[-1], pb.t_us[-1]) - max(pa.t_us[0], pb.t_us[0]) >= 30_000  # tracked at the same time
 
 
+def test_a_fast_ball_coming_in_is_tracked_from_its_first_detection():
+    """A 30 m/s ball (r 80 px, 22,000 px/s) coming in over the sensor's left border: its first
+    detection, 0.9 r inside, has a wrong centroid velocity (its visible part grows); the detection
+    after it continues it all the same, so the track has the ball before it is fully in view (it
+    started a slice later, after the ball was fully in, before)."""
+    rec = sim.flight("volleyball", rps=40.0, axis=(0.3, 1.0, 0.2), radius_px=80.0, width=640, height=480,
+                     duration_s=0.01, start_px=(-40.0, 240.0), velocity_px_s=(22000.0, 0.0), gravity_px_s2=0.0,
+                     distractors=(), noise_rate_hz=1.0, hot_pixels=0, seed=1)
+    tr = track_ball(rec.events, width=640, height=480)
+    truth = rec.truth_track(visible_only=False)
+    assert len(tr.flight_ids()) == 1
+    assert tr.t_us[0] < truth.t_us[np.argmax(truth.cx - truth.r >= 0)]  # before the ball is fully in
+    cx, cy, r, _, _ = _flight_truth(rec, tr.t_us)
+    assert np.max(np.hypot(tr.cx - cx, tr.cy - cy)) < 0.25 * 80.0
+    assert np.median(np.hypot(tr.cx - cx, tr.cy - cy)) < 1.0
+
+
 def test_a_player_s_head_is_no_second_ball():
     """While the ball is tracked, the search for another one does not take the head of a player
     walking in view (a circle on a third of its sides) for one."""

@@ -243,6 +243,18 @@ def test_bounce_splits_the_flight():
         assert np.max(np.hypot(part.cx - cx, part.cy - cy)) < 1.5
 
 
+def test_no_row_is_stamped_after_the_stream_s_last_event():
+    """The stream's last slice ends with its last event (12.5 ms, a quarter into a 2 ms slice): its
+    window's row lies within the events (at 13 ms, the nominal slice's middle, before)."""
+    rng = np.random.default_rng(13)
+    c0, v = (40.0, 100.0), (8000.0, 500.0)
+    ev = _events([_ball_events(rng, 0, 12_500, c0, v, 12.0)])
+    tr = track_ball(ev, width=W, height=H, r_range=(5, 40))
+    assert int(ev["t"][-1]) - 500 <= tr.t_us.max() <= int(ev["t"][-1])
+    cx, cy = _truth(tr.t_us, c0, v)
+    assert np.max(np.hypot(tr.cx - cx, tr.cy - cy)) < 1.0
+
+
 def test_streaming_equals_batch():
     rng = np.random.default_rng(11)
     c0, v = (20.0, 120.0), (3000.0, -400.0)
