@@ -48,6 +48,11 @@ FAST_EVENTS = 24_000
 LEVELS = ((1.5, 12.0, 1.2, 500, 2, 1e-4), (1.5, 40.0, 1.0, 2500, 6, 3e-4), (1.5, 100.0, 0.55, 8000, 6, 1e-6))
 # the cross-check's parts must agree with the whole window within these (deg, ratio) for full trust
 CHECK_ANGLE_DEG, CHECK_RATIO = 5.0, 1.05
+# a part whose answer strays more than this many times those limits from the whole window's after a
+# level (the first level, the second-last) refines it no further: the cross-check then refines it again
+# beside the whole's answer (:func:`_half_answer`).  The first level's answers on windows of little
+# rotation lie up to ~25 deg from the truth; the second-last level's within a few degrees.
+STRAY_FACTORS = (6.0, 3.0)
 # a window turning through at least this much (rad: eight times a level's span) is checked on quarters
 QUARTERS_FROM_RAD = 8 * LEVELS[-1][0]
 # uncertainty (1 sigma): the halves' difference times these (axis, rate), at least the floors (deg, %).
@@ -226,7 +231,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     found = 0  # parts whose own search found the whole window's answer
     for i0, i1 in zip(bounds[:-1], bounds[1:]):
         events = _recentred(ev.take(slice(i0, i1)))
-        own = estimate_window(events, velocity_px_s, assess=False, **opts)
+        own = estimate_window(events, velocity_px_s, assess=False, reference_w_rad_s=whole.w_rad_s, **opts)
         angle, log_ratio = _deviation(own.w_rad_s, whole.w_rad_s)
         w = own.w_rad_s
         if angle > CHECK_ANGLE_DEG or log_ratio > math.log(CHECK_RATIO):
@@ -254,7 +259,8 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
                     omega_ratio: float = 1.6, n_candidates: int = 3, n_directions: int = 40,
                     coarse_events: int = 450, levels=LEVELS, max_scale: float = 2.0,
                     refine_velocity: bool | None = None, hemispheres: bool = False,
-                    prior_w_rad_s=None, prior_span: float = 2.2, assess: bool = True) -> FastResult:
+                    prior_w_rad_s=None, prior_span: float = 2.2, assess: bool = True,
+                    reference_w_rad_s=None) -> FastResult:
     """One estimate of ``w = omega * axis`` (rad/s) and the velocity from prepared ball events.
 
     Parameters
@@ -278,6 +284,10 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
     assess : bool
         Measure the confidence (else NaN, with no runner-up refined: the cross-check's halves need
         only the answer).
+    reference_w_rad_s : (3,), optional
+        The answer a cross-check's part is compared with (rad/s): once this one strays more than
+        ``STRAY_FACTORS`` times the check's limits from it, the levels stop (its exact value no longer
+        matters).
     """
     v0 = np.asarray(velocity_px_s, dtype=np.float64)
     r = ev.radius_px
@@ -317,6 +327,11 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
     for li, level in enumerate(levels[1:], start=1):
         span, _, _, n_ev, iterations, ftol = level
         last = li == len(levels) - 1
+        if reference_w_rad_s is not None:
+            angle, log_ratio = _deviation(w, reference_w_rad_s)
+            stray = STRAY_FACTORS[0] if li == 1 else STRAY_FACTORS[1]
+            if angle > stray * CHECK_ANGLE_DEG or log_ratio > stray * math.log(CHECK_RATIO):
+                break
         omega = float(np.linalg.norm(w))
         sub = events_for_span(ev, omega, span, n_ev)
         rv = False

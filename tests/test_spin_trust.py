@@ -76,6 +76,26 @@ def test_half_that_misses_defers_to_the_whole_where_it_scores_higher(ball):
     assert _axis_err_deg(w / np.linalg.norm(w), truth["axis"]) < 3
 
 
+def test_a_part_that_strays_far_from_the_whole_stops_refining(monkeypatch, ball):
+    """A cross-check's part refines level after level only while its answer stays within
+    STRAY_FACTORS times the check's limits of the whole window's (beyond, _half_answer refines it again)."""
+    ev, truth = ball
+    w_true = truth["axis"] * truth["omega_rad_s"]
+    half = fast._recentred(ev.take(slice(0, len(ev) // 2)))
+    levels_run = []
+    maximise = fast.maximise
+    monkeypatch.setattr(fast, "maximise", lambda *a, **k: levels_run.append(1) or maximise(*a, **k))
+    free = fast.estimate_window(half, (0.0, 0.0), assess=False)
+    near = fast.estimate_window(half, (0.0, 0.0), assess=False, reference_w_rad_s=w_true * 1.02)
+    assert len(levels_run) == 2 * len(fast.LEVELS)
+    np.testing.assert_array_equal(near.w_rad_s, free.w_rad_s)
+    assert _axis_err_deg(free.w_rad_s / np.linalg.norm(free.w_rad_s), truth["axis"]) < 2
+    levels_run.clear()
+    far = fast.estimate_window(half, (0.0, 0.0), assess=False, reference_w_rad_s=_rotated(w_true, 90.0))
+    assert len(levels_run) == 1  # the first level's answer is far from the reference: no further level
+    assert _axis_err_deg(far.w_rad_s / np.linalg.norm(far.w_rad_s), truth["axis"]) < 30
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_trusted_estimates_are_right_and_their_uncertainty_covers_the_error(seed):
     rng = np.random.default_rng(seed)
