@@ -14,7 +14,7 @@ from pathlib import Path
 
 from capture.cliargs import add_ball_args, ball_attr, box, flicker_hz, positive_int, run_command
 from capture.ingest import complete_cut_short, session_from_raw
-from capture.pipeline.replay import ReplayOptions, replay, session_flicker_hz
+from capture.pipeline.replay import ReplayOptions, replay, resolved_options
 from capture.results import format_flight_table, session_results
 from capture.session import open_session, update_session
 
@@ -95,8 +95,8 @@ def _run(args) -> None:
         opts.tracker = {"flicker_hz": recorded_flicker}
         print(f"note: {session_path}: recorded with --flicker-hz {recorded_flicker}", file=sys.stderr)
     if opts.tracker.get("flicker_hz") == "auto":
-        found = session_flicker_hz(session_path)
-        opts.tracker = {"flicker_hz": found} if found else {}
+        opts = resolved_options(session_path, opts)
+        found = opts.tracker.get("flicker_hz")
         print(f"note: {session_path}: " + (f"lights flicker at {found:g} Hz: detection leaves their events out"
                                            if found else "no flickering light found"), file=sys.stderr)
     elif opts.tracker.get("flicker_hz"):

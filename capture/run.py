@@ -38,7 +38,7 @@ from capture.cliargs import (
 )
 from capture.evk.bias_file import biases_of
 from capture.pipeline.record import RecorderError, RecordResult, RecordSettings, record_session
-from capture.pipeline.replay import REVIEW_NAME, ReplayOptions, ReplayResult, replay, session_flicker_hz
+from capture.pipeline.replay import REVIEW_NAME, ReplayOptions, ReplayResult, replay, resolved_options
 from capture.results import format_flight_table, session_results
 
 PROG = "python -m capture.run"
@@ -124,11 +124,12 @@ def _run(args, out: Path, stop: threading.Event) -> int:
         if not args.quiet:
             print("Analysing the session (detection, spin, Rerun recording)...", file=sys.stderr, flush=True)
         try:
-            flicker = session_flicker_hz(out) if args.flicker_hz == "auto" else args.flicker_hz
+            options = resolved_options(out, ReplayOptions(
+                tracker={"flicker_hz": args.flicker_hz} if args.flicker_hz else {}))
+            flicker = options.tracker.get("flicker_hz")
             if args.flicker_hz == "auto" and not args.quiet:
                 print(f"Lights flicker at {flicker:g} Hz: detection leaves their events out" if flicker
                       else "No flickering light found", file=sys.stderr)
-            options = ReplayOptions(tracker={"flicker_hz": flicker} if flicker else {})
             analysis = replay(out, rrd_path=out / REVIEW_NAME, options=options, progress=not args.quiet)
         except Exception as exc:  # the recording is safe; say why the analysis did not finish
             result.messages.append(f"analysis failed ({type(exc).__name__}: {exc}); "

@@ -22,7 +22,8 @@
    halves; a wrong one that wins on the whole window (an aliased speed, a mirrored axis, a sharp
    but spurious alignment of sparse seams) rarely comes out of both.  Confidence falls as either
    half strays beyond 5 deg / 5 % of the whole window's answer, and the halves' spread gives the
-   uncertainty.
+   uncertainty.  A half whose answer strays far stops refining early: it is refined again beside
+   the whole window's answer on the same events, and the higher contrast speaks for the half.
 """
 
 from __future__ import annotations

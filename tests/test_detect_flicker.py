@@ -177,6 +177,23 @@ def test_replay_finds_the_light_and_says_so(lit_flight, tmp_path, capsys):
     assert _recall(Track.from_columns(s.track()), lit_flight) > 0.85  # a stream: filtered from its 2nd period
 
 
+def test_batch_stamps_the_frequency_it_found(lit_flight, tmp_path):
+    """The batch's units resolve ``flicker_hz="auto"`` per session, as replay does: the stored settings
+    hold the frequency found (they held "auto"), and a second run with ``auto`` finds them the same."""
+    from capture.pipeline.batch import store_unit, track_unit
+    from capture.pipeline.replay import ReplayOptions
+    from capture.session import create_session, open_session
+
+    with create_session(tmp_path / "lit", width=640, height=480) as w:
+        w.append_events(lit_flight.events)
+    options = ReplayOptions(tracker={"flicker_hz": "auto"})
+    track = track_unit(str(tmp_path / "lit"), options, force=False)
+    assert _recall(track, lit_flight) > 0.85
+    store_unit(str(tmp_path / "lit"), track, [], options, None)
+    assert open_session(tmp_path / "lit").attrs["analysis"]["settings"]["tracker"] == {"flicker_hz": 100.0}
+    assert track_unit(str(tmp_path / "lit"), options, force=False) is None  # already analysed so
+
+
 def test_bad_input_is_named_with_the_filter_on():
     ev = np.zeros(3, EVENT_DTYPE)
     ev["t"] = [5, 3, 9]

@@ -31,8 +31,8 @@ from tqdm import tqdm
 from capture.cliargs import describe
 from capture.events import SPIN_COLUMNS, Track, concat_tables
 from calib.store import event_camera
-from capture.pipeline.replay import (ReplayOptions, analysed_with, one_thread_per_worker, spin_flight, store_results,
-                                     track_session)
+from capture.pipeline.replay import (ReplayOptions, analysed_with, one_thread_per_worker, resolved_options,
+                                     spin_flight, store_results, track_session)
 from capture.results import session_results
 from capture.ingest import complete_cut_short
 from capture.session import Session, open_session
@@ -48,8 +48,11 @@ def track_unit(session_path: str, options: ReplayOptions, force: bool) -> Track 
     """The session's whole ball track, or None when it is already analysed with ``options`` by this
     software (and not ``force``). A recording cut short is first completed from its RAW file
     (:func:`capture.ingest.complete_cut_short`; when it cannot be, its stored part is analysed and
-    its damage note says so). Raises :class:`capture.session.SessionError` on a damaged store."""
+    its damage note says so). A tracker's ``flicker_hz="auto"`` is resolved first
+    (:func:`capture.pipeline.replay.resolved_options`). Raises :class:`capture.session.SessionError`
+    on a damaged store."""
     complete_cut_short(session_path, progress=False)
+    options = resolved_options(session_path, options)
     if not force and analysed_with(open_session(session_path), options):
         return None
     return track_session(session_path, options, progress=False)
@@ -113,8 +116,10 @@ def tables_unit(session_path: str, ball_diameter_m: float | None) -> SessionTabl
 def store_unit(session_path: str, track: Track, spins: Sequence[dict], options: ReplayOptions,
                ball_diameter_m: float | None) -> SessionTables:
     """Write the session's results as :func:`capture.pipeline.replay.replay` does (``spins``: the
-    columns of every part, in any order) and return its tables."""
-    store_results(session_path, track, concat_tables(spins, SPIN_COLUMNS, sort_by="t_start_us"), options)
+    columns of every part, in any order; a flicker frequency found stamped in place of ``auto``) and
+    return its tables."""
+    store_results(session_path, track, concat_tables(spins, SPIN_COLUMNS, sort_by="t_start_us"),
+                  resolved_options(session_path, options))
     return tables_unit(session_path, ball_diameter_m)
 
 

@@ -19,7 +19,7 @@ import functools
 import hashlib
 import json
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -218,6 +218,17 @@ def session_flicker_hz(session_path) -> float | None:
     (:func:`detect.flicker.find_flicker_hz`), or None."""
     s = open_session(session_path)
     return find_flicker_hz(s.events_range(0, min(s.n_events, FLICKER_SAMPLE_EVENTS)), s.width, s.height)
+
+
+def resolved_options(session_path, options: ReplayOptions) -> ReplayOptions:
+    """``options`` for one session, a tracker's ``flicker_hz="auto"`` replaced by what its events
+    show (:func:`session_flicker_hz`: the frequency, or no filter): the settings stored with the
+    results then say what detection did, and a second run with ``auto`` finds them the same."""
+    if options.tracker.get("flicker_hz") != "auto":
+        return options
+    found = session_flicker_hz(session_path)
+    tracker = {k: v for k, v in options.tracker.items() if k != "flicker_hz"}
+    return replace(options, tracker={**tracker, "flicker_hz": found} if found else tracker)
 
 
 def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int, np.ndarray]]:
