@@ -5,7 +5,7 @@ import pytest
 
 import sim
 from capture.pipeline.live import LiveAnalysis, LiveState
-from capture.pipeline.record import ball_status
+from capture.pipeline.record import ball_status, spin_status
 
 
 @pytest.fixture(scope="module")
@@ -63,5 +63,28 @@ def test_live_analysis_follows_two_balls_at_once(two_balls_at_once):
                 for t, cx, cy, _ in live.state.balls]
         assert min(near) < 2.0  # one of them is this ball
     assert ball_status(live.state).startswith("2 balls (")  # the recorder's status line shows both
+    assert len(live.state.spins) == 2
     assert ball_status(LiveState()) == "no ball"
     assert ball_status(LiveState(ball=(5, 10.2, 20.7, 3.0))) == "ball (10,21) r 3"
+
+
+def test_live_spin_takes_turns_between_two_balls(two_balls_at_once):
+    """With two balls in view, the live spin estimates take turns between them (one per spin_every_us
+    of sensor time, the ball estimated longest ago first): each ball shows its own last estimate,
+    where the status showed whichever ball's row came last."""
+    from sim.esim import merge
+
+    a, b = two_balls_at_once
+    ev = merge(a.events, b.events)
+    batches = [ev[i:i + 20_000] for i in range(0, len(ev), 20_000)]
+    live = LiveAnalysis(a.width, a.height, spin_every_us=2_000, max_queue=len(batches))
+    for batch in batches:
+        live.offer(batch)
+    live.close(timeout_s=300)
+    assert live.error is None and len(live.state.spins) == 2
+    flights = [e.flight for e in live.state.spins]
+    assert None not in live.state.spins and flights[0] != flights[1]
+    assert any(live.state.spin is e for e in live.state.spins)  # the newest is one of them
+    line = spin_status(live.state)
+    assert line.startswith("spin ") and line.count(" rps (conf ") == 2 and " / " in line
+    assert spin_status(LiveState()) == ""

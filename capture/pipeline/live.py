@@ -31,6 +31,9 @@ class LiveState:
         once: two), oldest flight first.
     spin : object or None
         Last spin estimate (``spin.SpinEstimate``), or None.
+    spins : tuple
+        The last spin estimate of each ball in ``balls`` (None where it has none yet): with two
+        balls in view the estimates take turns between them.
     analysed_events, skipped_events : int
         Events analysed and events skipped because the analysis was behind.
     """
@@ -38,6 +41,7 @@ class LiveState:
     ball: tuple | None = None
     balls: tuple = ()
     spin: object | None = None
+    spins: tuple = ()
     analysed_events: int = 0
     skipped_events: int = 0
 
@@ -52,7 +56,7 @@ class LiveAnalysis:
     review : capture.review.LiveReview, optional
         Where to log track rows and spin estimates.
     spin_every_us : int
-        Least sensor time between two live spin estimates, µs.
+        Sensor time per live spin estimate, µs (with two balls in view they take turns).
     window_us, min_events, max_events :
         Spin window settings (see :func:`detect.track.spin_windows`).
     max_queue : int
@@ -83,6 +87,8 @@ class LiveAnalysis:
         self._keep_us = keep_us
         self._last_circle: dict[int, tuple] = {}  # flight -> its newest (t_us, cx, cy, r)
         self._last_spin_t = -(1 << 62)
+        self._last_spin: dict[int, object] = {}  # flight -> its newest spin estimate
+        self._spin_t_us: dict[int, int] = {}  # flight -> sensor time of its newest spin estimate
         self._thread = threading.Thread(target=self._run, name="live-analysis", daemon=True)
         self._thread.start()
 
@@ -132,7 +138,10 @@ class LiveAnalysis:
                                                       float(rows.r[k]))
         active = self.tracker.active_flights
         self._last_circle = {i: c for i, c in self._last_circle.items() if i in active}
+        self._last_spin = {i: e for i, e in self._last_spin.items() if i in active}
+        self._spin_t_us = {i: t for i, t in self._spin_t_us.items() if i in active}
         self.state.balls = tuple(self._last_circle[i] for i in active if i in self._last_circle)
+        self.state.spins = tuple(self._last_spin.get(i) for i in active if i in self._last_circle)
         self.state.analysed_events += len(batch)
         t_now = int(batch["t"][-1])
         self._recent.append(batch)
@@ -143,15 +152,20 @@ class LiveAnalysis:
         if self.review is not None:
             self.review.log_track(rows)
         self.state.ball = (int(rows.t_us[-1]), float(rows.cx[-1]), float(rows.cy[-1]), float(rows.r[-1]))
-        if t_now - self._last_spin_t < self._spin_every_us:
+        due = (t_now - self._last_spin_t) // self._spin_every_us  # estimates owed: one per spin_every_us
+        if due < 1:
             return
         self._last_spin_t = t_now
-        self._estimate_spin(rows)
+        # the balls whose spin was estimated longest ago (never: first) among those with new rows
+        turns = sorted(np.unique(rows.flight).tolist(), key=lambda i: self._spin_t_us.get(i, -(1 << 62)))
+        for flight in turns[:due]:
+            self._spin_t_us[flight] = t_now
+            self._estimate_spin(rows.select(rows.flight == flight))
 
     def _estimate_spin(self, rows: Track) -> None:
-        """One spin estimate on the window that ends at the newest track row."""
+        """One spin estimate on the window that ends at the newest row of ``rows`` (one flight's)."""
         w_us = self._window["window_us"]
-        last = rows.select(rows.flight == rows.flight[-1])
+        last = rows
         last = last.select(last.t_us >= last.t_us[-1] - w_us)
         t0 = int(last.t_us[0])
         events = time_slice(concatenate(b for b in self._recent if b["t"][-1] >= t0), t0, t0 + w_us)
@@ -159,5 +173,8 @@ class LiveAnalysis:
         est = spin.estimate_windows(windows, camera=self.camera)
         if est:
             self.state.spin = est[0]
+            self._last_spin[int(rows.flight[-1])] = est[0]
+            active = self.tracker.active_flights
+            self.state.spins = tuple(self._last_spin.get(i) for i in active if i in self._last_circle)
             if self.review is not None:
                 self.review.log_spin(est[0])

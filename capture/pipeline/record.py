@@ -140,6 +140,17 @@ def ball_status(state) -> str:
     return f"ball ({b[1]:.0f},{b[2]:.0f}) r {b[3]:.0f}" if b else "no ball"
 
 
+def spin_status(state) -> str:
+    """The status line's spin part from a :class:`capture.pipeline.live.LiveState`: the newest
+    estimate, or each ball's (in the order of :func:`ball_status`) where two or more are tracked."""
+    def one(est):
+        return f"{est.rps:.1f} rps (conf {est.confidence:.2f})" if est is not None else "-"
+
+    if len(state.spins) > 1:
+        return "spin " + " / ".join(one(e) for e in state.spins) + "  "
+    return f"spin {one(state.spin)}  " if state.spin is not None else ""
+
+
 class _Status(threading.Thread):
     """Every ``tick_s`` commits the store if due (``flush``, also while no data arrives); every
     ``period_s`` prints a status line and stops the recording when the disk is nearly full."""
@@ -187,8 +198,7 @@ class _Status(threading.Thread):
             line += f"disk {free / 2**30:.1f} GiB free  "
             st = self.live.state
             line += ball_status(st) + "  "
-            if st.spin is not None:
-                line += f"spin {st.spin.rps:.1f} rps (conf {st.spin.confidence:.2f})  "
+            line += spin_status(st)
             if st.skipped_events:
                 line += f"live analysis skipped {st.skipped_events / 1e6:.2f} Mev (behind)"
             print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr,
