@@ -518,8 +518,8 @@ class BallTracker:
 
     def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int, end_us: int | None = None) -> None:
         """The slices of block ``[b0, b0 + block_us)``; with ``end_us`` (the stream's end: its last event
-        + 1 µs), its last slice ends there and the tracking windows being joined end with it (no row
-        is stamped after the stream's last event)."""
+        + 1 µs), its last slice ends there and the tracking windows being joined end with it (no
+        window's row is stamped after the stream's last event; frames after it may still add rows)."""
         x = ev["x"].astype(np.int32)
         y = ev["y"].astype(np.int32)
         if self._hot is not None and (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
@@ -708,7 +708,8 @@ class BallTracker:
 
     def _track_ends(self, fl: _Flight, window, slice_events, s1: int, around: float, r_rng) -> bool:
         """Measure the ball on the first and the last part of a tracking window whose fit failed, each
-        so short that the ball moves about a pixel in it; whether the flight took a measurement.
+        so short that the ball moves about a pixel in it (at least ``_END_PART_MIN_US``: a few pixels
+        at 20,000 px/s); whether the flight took a measurement.
 
         A bounce or a hit inside the window changes the velocity: compensated with the predicted one,
         the ball's events smear and the window's fit fails (or looks like clutter).  The first part
@@ -718,16 +719,20 @@ class BallTracker:
         events (``slice_events``, ``(t, x, y)``) as far from the prediction as a bounce inside the
         window could take it (or from the last outlier, as far as since then), with the flight's
         size and its rim on most sides; it updates the flight or counts as an outlier, so that two
-        windows after a bounce start the next flight from their last parts.  Not while another
-        tracked ball is near (two balls crossing: the other is what failed the fit)."""
+        windows after a bounce start the next flight from their last parts.  A part is not fitted
+        where another tracked ball (with its surround) comes within its reach (two balls crossing:
+        the other is what failed the fit, and would be taken for this one)."""
         t, x, y, start = window
         cx, cy, vx, vy, _, _, r = fl.kf.predict(max(start, fl.kf.t_us))[0]
         speed = float(np.hypot(vx, vy))
-        for o in self._flights:
-            ox, oy, ovx, ovy, _, _, o_r = o.kf.predict(max(start, o.kf.t_us))[0]
-            closing = np.hypot(vx - ovx, vy - ovy) * (s1 - start) * 1e-6
-            if o is not fl and np.hypot(cx - ox, cy - oy) < around + 1.5 * o_r + 2.0 + closing:
-                return False
+        others = [o.kf.predict(max(start, o.kf.t_us))[0] for o in self._flights if o is not fl]
+
+        def crowded(px, py, reach):  # another ball within ``reach`` (px, each axis) of (px, py) this window
+            return any(max(abs(px - o[0]), abs(py - o[1])) < reach + 1.5 * o[6] + 2.0
+                       + np.hypot(vx - o[2], vy - o[3]) * (s1 - start) * 1e-6 for o in others)
+
+        if crowded(cx, cy, around):
+            return False
         part_us = int(np.clip(1e6 / max(speed, 1.0), _END_PART_MIN_US, (s1 - start) // 3))
         if part_us < _END_PART_MIN_US or fl.ball_rate * part_us < _END_PART_MIN_EVENTS:
             return False
@@ -756,6 +761,8 @@ class BallTracker:
             ox, oy, half = pred[0], pred[1], around + 2.0 * speed * (s1 - start) * 1e-6
         else:  # since the last outlier, at about the speed before
             ox, oy, half = last[1].cx, last[1].cy, around + 1.5 * speed * (tm - last[0]) * 1e-6
+        if crowded(ox, oy, half):
+            return took
         t, x, y = slice_events
         i0, i1 = np.searchsorted(t, (s1 - part_us, s1))
         ts, xs, ys = t[i0:i1], x[i0:i1], y[i0:i1]

@@ -200,7 +200,7 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     ev = merge(ev, noise)
     # ground-truth circle
     t_us = np.arange(t0_us, t_end_us, int(track_dt_us), dtype=np.int64)
-    t_us = np.append(t_us, t_end_us) if t_us[-1] < t_end_us else t_us  # to the recording's end
+    t_us = np.append(t_us, t_end_us) if len(t_us) and t_us[-1] < t_end_us else t_us  # to the recording's end
     ts = (t_us - t0_us) * 1e-6
     circ = ball.circle(cam, ts)
     vel = ball.image_velocity(cam, ts)

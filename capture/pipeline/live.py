@@ -56,7 +56,8 @@ class LiveAnalysis:
     review : capture.review.LiveReview, optional
         Where to log track rows and spin estimates.
     spin_every_us : int
-        Sensor time per live spin estimate, µs (with two balls in view they take turns).
+        Sensor time per live spin estimate, µs (with two balls in view they take turns; 0: each
+        ball with new rows, every batch of events).
     window_us, min_events, max_events :
         Spin window settings (see :func:`detect.track.spin_windows`).
     max_queue : int
@@ -152,12 +153,14 @@ class LiveAnalysis:
         if self.review is not None:
             self.review.log_track(rows)
         self.state.ball = (int(rows.t_us[-1]), float(rows.cx[-1]), float(rows.cy[-1]), float(rows.r[-1]))
-        due = (t_now - self._last_spin_t) // self._spin_every_us  # estimates owed: one per spin_every_us
+        due = (t_now - self._last_spin_t) // max(self._spin_every_us, 1)  # estimates owed: one per spin_every_us
         if due < 1:
             return
         self._last_spin_t = t_now
-        # the balls whose spin was estimated longest ago (never: first) among those with new rows
-        turns = sorted(np.unique(rows.flight).tolist(), key=lambda i: self._spin_t_us.get(i, -(1 << 62)))
+        # the balls whose spin was estimated longest ago (never: first) among those with new rows, those
+        # still tracked first (a flight that ended in this batch is no longer shown)
+        turns = sorted(np.unique(rows.flight).tolist(),
+                       key=lambda i: (i not in active, self._spin_t_us.get(i, -(1 << 62))))
         for flight in turns[:due]:
             self._spin_t_us[flight] = t_now
             self._estimate_spin(rows.select(rows.flight == flight))
