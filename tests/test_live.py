@@ -85,6 +85,22 @@ def test_live_spin_takes_turns_between_two_balls(two_balls_at_once):
     flights = [e.flight for e in live.state.spins]
     assert None not in live.state.spins and flights[0] != flights[1]
     assert any(live.state.spin is e for e in live.state.spins)  # the newest is one of them
+    # turns: a tracker reporting every 2 ms slice, and a batch per slice, owe one estimate per update
+    # with rows; while both balls are tracked, no ball is estimated twice in a row
+    from detect import BallTracker
+
+    turns = LiveAnalysis(a.width, a.height, spin_every_us=2_000, max_queue=10 ** 6)
+    turns.tracker = BallTracker(a.width, a.height, block_us=2_000)
+    order = []
+    estimate = turns._estimate_spin
+    turns._estimate_spin = lambda rows: (order.append((int(rows.flight[-1]), turns.tracker.active_flights)),
+                                         estimate(rows))
+    t0 = int(ev["t"][0]) // 2_000 * 2_000
+    for lo in range(t0, int(ev["t"][-1]) + 1, 2_000):
+        turns.offer(ev[(ev["t"] >= lo) & (ev["t"] < lo + 2_000)])
+    turns.close(timeout_s=300)
+    both = [f for f, active in order if len(active) == 2]
+    assert len(both) >= 6 and all(x != y for x, y in zip(both, both[1:]))
     line = spin_status(live.state)
     assert line.startswith("spin ") and line.count(" rps (conf ") == 2 and " / " in line
     assert spin_status(LiveState()) == ""
