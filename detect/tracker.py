@@ -112,6 +112,14 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
     return float(np.mean(dens_ring >= 0.3 * dens_in))
 
 
+def _in_clutter(fit: CircleFit, cx: float, cy: float, reach: float, x: np.ndarray, y: np.ndarray) -> bool:
+    """Whether a tracking fit is no measurement: its rim reaches the edge of the selection within
+    ``reach`` px of ``(cx, cy)``, or the events ``(x, y)`` (motion-compensated) lie all around it (a
+    flickering light, a body behind the ball)."""
+    return bool(fit.r + np.hypot(fit.cx - cx, fit.cy - cy) > reach - 0.5
+                or _surrounded(x, y, fit) > MAX_SURROUNDED_TRACKING)
+
+
 def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: float, width: int,
             height: int) -> np.ndarray:
     """Indices of the events (int32 pixel coordinates) with ``x0 < x < x1`` and ``y0 < y < y1``.
@@ -657,10 +665,7 @@ class BallTracker:
         sel = dx * dx + dy * dy < reach * reach
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
         fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
-        if fit is not None and (fit.r + np.hypot(fit.cx - cx, fit.cy - cy) > reach - 0.5
-                                or _surrounded(dx + cx, dy + cy, fit) > MAX_SURROUNDED_TRACKING):
-            # a rim at the edge of the selection, or events all around: the ball is in clutter (a
-            # flickering light, a body behind it) and the window is no measurement
+        if fit is not None and _in_clutter(fit, cx, cy, reach, dx + cx, dy + cy):
             fit = None
         if fit is None or fit.score < self.min_score:
             if not self._track_ends(fl, (t, x, y, start), slice_events, s1, around, r_rng):
@@ -675,12 +680,8 @@ class BallTracker:
         """Update flight ``fl`` with ``fit`` (a window centred at ``m`` µs, its ``events`` ``(t, x, y)``)
         where the fit lies in the gate around the prediction, and say so; else count it as an
         outlier (two in a row: a hit or a bounce, the flight ends and its outliers seed the next)."""
-        if self._in_gate(fl.kf, m, fit):
-            fl.kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, 1.5 * fit.sigma_px)
-            fl.scores.append(fit.score)
-            self._emit(fl, m)
-            fl.misses = fl.outliers = 0
-            fl.outlier_fits = []
+        if self._in_gate(fl.kf, m, fit.cx, fit.cy, fit.sigma_px, fit.r):
+            self._update(fl, m, fit)
             return True
         fl.outliers += 1
         fl.misses += 1
@@ -698,13 +699,23 @@ class BallTracker:
                 self._chains = [*self._chains[-(_MAX_CHAINS - 1):], seeds]
         return False
 
-    def _in_gate(self, kf: CircleKalman, m: int, fit: CircleFit) -> bool:
-        """Whether ``fit`` (at ``m`` µs) lies in the gate around the prediction of ``kf`` (Mahalanobis,
-        or within a tenth of the radius) with about its size."""
-        cx, cy, r = kf.predict(m)[0][[0, 1, 6]]
-        d2 = kf.innovation(m, (fit.cx, fit.cy), fit.sigma_px)
-        return bool((d2 <= self.gate_chi2 or np.hypot(fit.cx - cx, fit.cy - cy) <= 0.1 * r + 1.0)
-                    and abs(fit.r - r) <= 0.25 * r + 2.0)
+    def _update(self, fl: _Flight, m: int, fit: CircleFit) -> None:
+        """Update flight ``fl`` with a gated ``fit`` (a window centred at ``m`` µs) and emit its row."""
+        fl.kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, 1.5 * fit.sigma_px)
+        fl.scores.append(fit.score)
+        self._emit(fl, m)
+        fl.misses = fl.outliers = 0
+        fl.outlier_fits = []
+
+    def _in_gate(self, kf: CircleKalman, t_us: int, cx: float, cy: float, sigma_px: float,
+                 r: float | None = None) -> bool:
+        """Whether a circle centred at ``(cx, cy)`` px (at ``t_us``, centre sigma ``sigma_px``) lies in
+        the gate around the prediction of ``kf`` (Mahalanobis, or within a tenth of the radius) and,
+        given its radius ``r``, has about the predicted size."""
+        px, py, pr = kf.predict(t_us)[0][[0, 1, 6]]
+        d2 = kf.innovation(t_us, (cx, cy), sigma_px)
+        return bool((d2 <= self.gate_chi2 or np.hypot(cx - px, cy - py) <= 0.1 * pr + 1.0)
+                    and (r is None or abs(r - pr) <= 0.25 * pr + 2.0))
 
     def _track_ends(self, fl: _Flight, window, slice_events, s1: int, around: float, r_rng) -> bool:
         """Measure the ball on the first and the last part of a tracking window whose fit failed, each
@@ -749,10 +760,10 @@ class BallTracker:
         if sel.sum() >= _END_PART_MIN_EVENTS:
             fit = self._fit(ts[sel], xs[sel], ys[sel], tm, (pred[0], pred[1]), (pred[2], pred[3]), r_rng)
             if (fit is not None and fit.score >= self.min_score
-                    and fit.r + np.hypot(fit.cx - pred[0], fit.cy - pred[1]) <= around - 0.5
-                    and _surrounded(dx + pred[0], dy + pred[1], fit) <= MAX_SURROUNDED_TRACKING
-                    and self._in_gate(fl.kf, tm, fit)):
-                took = self._judge(fl, tm, fit, (ts[sel], xs[sel], ys[sel]))
+                    and not _in_clutter(fit, pred[0], pred[1], around, dx + pred[0], dy + pred[1])
+                    and self._in_gate(fl.kf, tm, fit.cx, fit.cy, fit.sigma_px, fit.r)):
+                self._update(fl, tm, fit)
+                took = True
         # the last part: where the ball is now, however its motion changed
         tm = max(s1 - part_us // 2, fl.kf.t_us)
         pred = fl.kf.predict(tm)[0]
@@ -939,10 +950,8 @@ class BallTracker:
             if not circles:
                 continue
             c = min(circles, key=lambda c: np.hypot(c.cx - cx, c.cy - cy))
-            sig_r = 1.5 * self.frame_sigma_px
-            d2 = kf.innovation(t_us, (c.cx, c.cy), self.frame_sigma_px)
-            if d2 <= self.gate_chi2 or np.hypot(c.cx - cx, c.cy - cy) <= 0.1 * r + 1.0:
-                kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, sig_r)
+            if self._in_gate(kf, t_us, c.cx, c.cy, self.frame_sigma_px):
+                kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, 1.5 * self.frame_sigma_px)
                 fl.scores.append(c.score)
                 self._emit(fl, t_us)
 

@@ -142,7 +142,7 @@ class LiveAnalysis:
         self._last_spin = {i: e for i, e in self._last_spin.items() if i in active}
         self._spin_t_us = {i: t for i, t in self._spin_t_us.items() if i in active}
         self.state.balls = tuple(self._last_circle[i] for i in active if i in self._last_circle)
-        self.state.spins = tuple(self._last_spin.get(i) for i in active if i in self._last_circle)
+        self.state.spins = self._spins_shown()
         self.state.analysed_events += len(batch)
         t_now = int(batch["t"][-1])
         self._recent.append(batch)
@@ -168,8 +168,7 @@ class LiveAnalysis:
     def _estimate_spin(self, rows: Track) -> None:
         """One spin estimate on the window that ends at the newest row of ``rows`` (one flight's)."""
         w_us = self._window["window_us"]
-        last = rows
-        last = last.select(last.t_us >= last.t_us[-1] - w_us)
+        last = rows.select(rows.t_us >= rows.t_us[-1] - w_us)
         t0 = int(last.t_us[0])
         events = time_slice(concatenate(b for b in self._recent if b["t"][-1] >= t0), t0, t0 + w_us)
         windows = list(spin_windows(events, last, **self._window))[:1]
@@ -177,7 +176,10 @@ class LiveAnalysis:
         if est:
             self.state.spin = est[0]
             self._last_spin[int(rows.flight[-1])] = est[0]
-            active = self.tracker.active_flights
-            self.state.spins = tuple(self._last_spin.get(i) for i in active if i in self._last_circle)
+            self.state.spins = self._spins_shown()
             if self.review is not None:
                 self.review.log_spin(est[0])
+
+    def _spins_shown(self) -> tuple:
+        """The last spin estimate of each ball shown in ``state.balls`` (None where it has none yet)."""
+        return tuple(self._last_spin.get(i) for i in self.tracker.active_flights if i in self._last_circle)

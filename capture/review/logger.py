@@ -35,7 +35,6 @@ _BALL_MARGIN = 1.25
 """Events within this many radii of the track's circle count as the ball's when thinning."""
 
 
-
 def _circles_at(track: Track, t_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The circles of every flight of ``track`` whose span holds each time of ``t_us`` (µs, shape
     (N,); two balls in view at once give two): ``(circles (K, 3) cx, cy, r px in the order of the times,
