@@ -79,6 +79,33 @@ def test_evt3_system_type_bit_drops_other_camera():
     assert stats["events_without_y"] == 0
 
 
+def test_a_dropped_event_is_counted_once_for_its_first_reason():
+    # x 100 is outside a 64-pixel sensor, but the event has no row yet / is another camera's
+    ev, _, stats = decode("EVT3", evt3(0x8000, 0x2064, 0x0805, 0x2064, 0x0005, 0x2064, 0x2003), width=64, height=64)
+    assert rows(ev) == [(0, 3, 5, 0)]
+    assert (stats["events_without_y"], stats["events_other_system"], stats["events_out_of_bounds"]) == (1, 1, 1)
+
+
+def test_streams_denser_than_one_event_per_word_decode_whole():
+    # Full rows in vector groups (8 events per word) and a trigger after each: the decoder's
+    # first output arrays (one event per word, a few triggers) fill up and it carries on.
+    n_rows, width = 200, 1280
+    t = np.repeat(np.arange(n_rows) * 7, width)
+    ev = make_events(t, np.tile(np.arange(width), n_rows), np.repeat(np.arange(n_rows) % 720, width), t % 2)
+    tr = make_triggers(np.arange(n_rows) * 7, np.arange(n_rows) % 16, np.arange(n_rows) % 2)
+    data = raw.encode(ev, tr, format="EVT3", width=width, height=720)
+    assert len(ev) > 7 * len(data) // 2 and len(tr) > 64
+    for step in (len(data), 4096, 1000):
+        dec = raw.StreamDecoder("EVT3", width=width, height=720)
+        parts = [dec.decode(data[i:i + step]) for i in range(0, len(data), step)]
+        np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), ev)
+        np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), tr)
+    # EVT 2.1: 32 events per word (rows of (mask, header) after a TIME_HIGH)
+    words = np.tile(np.array([[0xFFFFFFFF, cd2(0, 0, 3, 1)]], "<u4"), (5000, 1))
+    ev21, _, stats = decode("EVT21", evt2(0, 0x8 << 28) + words.tobytes(), width=32, height=4)
+    assert ev21["x"].tolist() == list(range(32)) * 5000 and not stats["events_out_of_bounds"]
+
+
 def test_evt3_triggers_and_others_groups():
     words = evt3(0x8001, 0x6010, 0xA801, 0xE014, 0xF123, 0xF456, 0x7003,   # trigger id 8 rising, OTHERS group
                  0x0002, 0x2804, 0xEFFF,                                   # OTHERS with no continuation

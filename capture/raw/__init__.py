@@ -1,4 +1,4 @@
-"""Prophesee RAW files and streams (EVT 2.0, 2.1, 3.0) in NumPy: headers, decoders, encoders.
+"""Prophesee RAW files and streams (EVT 2.0, 2.1, 3.0): headers, decoders (compiled word loops), encoders.
 
 Public API
 ----------

@@ -1,4 +1,4 @@
-"""Shared pieces of the word decoders: decoder state, damage accounting, output arrays."""
+"""Shared pieces of the word decoders and encoders: decoder state, damage accounting, stream order."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE
 
 STAT_KEYS = (
     "words",                     # complete words decoded
@@ -63,35 +63,6 @@ class DecoderState:
                 self.first_damage_word = int(word_index)
 
 
-def check_time_order(t: np.ndarray, st: DecoderState, locate) -> None:
-    """Count CD events earlier than an event before them (a damaged time word), as damage.
-
-    ``t`` is a batch's contiguous int64 event times (µs) in stream order; ``st.t_max`` carries
-    the latest time across batches; ``locate(i)`` gives the stream word index that produced
-    event ``i`` (the damage offset). The common in-order case costs one comparison pass.
-    """
-    if not len(t):
-        return
-    if t[0] < st.t_max or not np.greater_equal(t[1:], t[:-1]).all():
-        peak = np.maximum.accumulate(t)
-        prior = np.empty_like(peak)
-        prior[0] = st.t_max
-        np.maximum(peak[:-1], st.t_max, out=prior[1:])
-        back = t < prior
-        st.damage("events_time_backward", np.count_nonzero(back), locate(int(np.argmax(back))))
-        st.t_max = max(st.t_max, int(peak[-1]))
-    else:
-        st.t_max = int(t[-1])
-
-
-def xy_view(events: np.ndarray) -> np.ndarray:
-    """``x | y << 16`` of every event as one little-endian uint32 view (one strided write for both)."""
-    if len(events) == 0:
-        return np.zeros(0, "<u4")
-    return np.ndarray((len(events),), dtype="<u4", buffer=events, offset=EVENT_DTYPE.fields["x"][1],
-                      strides=(EVENT_DTYPE.itemsize,))
-
-
 def first_of_type(words: np.ndarray, shift: int, word_type: int) -> int:
     """Index of the first word with ``word >> shift == word_type`` (-1 if none); looks at a short prefix first."""
     for stop in (64, len(words)):
@@ -103,37 +74,8 @@ def first_of_type(words: np.ndarray, shift: int, word_type: int) -> int:
     return -1
 
 
-def make_events(n: int) -> np.ndarray:
-    """Uninitialised EVENT_DTYPE array of length ``n``."""
-    return np.empty(n, dtype=EVENT_DTYPE)
-
-
 EMPTY_EVENTS = np.zeros(0, dtype=EVENT_DTYPE)
 EMPTY_TRIGGERS = np.zeros(0, dtype=TRIGGER_DTYPE)
-
-
-def triggers_from(t_us: np.ndarray, channel: np.ndarray, value: np.ndarray) -> np.ndarray:
-    """TRIGGER_DTYPE array from columns (µs, channel id, edge)."""
-    out = np.empty(len(t_us), dtype=TRIGGER_DTYPE)
-    out["t"] = t_us
-    out["id"] = channel
-    out["p"] = value
-    return out
-
-
-def in_bounds(x: np.ndarray, y: np.ndarray, st: DecoderState, locate) -> np.ndarray | None:
-    """Mask of events inside the sensor, or None if all are (or the geometry is unknown).
-
-    Events outside are counted as damage; ``locate(i)`` gives the stream word index that
-    produced event ``i`` (for the damage offset).
-    """
-    if st.width is None or st.height is None or len(x) == 0:
-        return None
-    if int(x.max()) < st.width and int(y.max()) < st.height:
-        return None
-    keep = (x < st.width) & (y < st.height)
-    st.damage("events_out_of_bounds", len(keep) - np.count_nonzero(keep), locate(int(np.argmin(keep))))
-    return keep
 
 
 def check_events(events: np.ndarray, triggers: np.ndarray | None, width: int, height: int,
@@ -199,6 +141,3 @@ def time_high_words(high: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarr
     return count, item, value
 
 
-def select(records: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """``records[keep]`` for a structured array, fast."""
-    return as_void(records)[keep].view(records.dtype)

@@ -1,4 +1,4 @@
-"""EVT 3.0: vectorised decoder and encoder for 16-bit little-endian words.
+"""EVT 3.0: decoder (a compiled word loop) and vectorised encoder for 16-bit little-endian words.
 
 Word types (``type = word >> 12``; payload = low 12 bits):
 ``0x0`` ADDR_Y (y[10:0], system-type bit 11), ``0x2`` ADDR_X (x[10:0], polarity bit 11, one
@@ -19,104 +19,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, check_time_order,
-                                  first_of_type,
-                                  in_bounds, make_events, merge_order, time_high_words, triggers_from, xy_view)
+from capture.raw import _kernels
+from capture.raw._common import (EMPTY_EVENTS, EMPTY_TRIGGERS, DecoderState, check_events, first_of_type, merge_order,
+                                  time_high_words)
+from capture.raw._kernels import run_kernel
 
 TIME_HIGH_WRAP = 1 << 12
 """TIME_HIGH values per loop; one loop is 2^24 µs."""
 
 _ADDR_Y, _ADDR_X, _VECT_BASE_X, _VECT_12, _VECT_8 = 0x0, 0x2, 0x3, 0x4, 0x5
 _TIME_LOW, _TIME_HIGH, _EXT_TRIGGER = 0x6, 0x8, 0xA
-_OTHER_TYPES = (0x7, 0xD, 0xE, 0xF)
-_UNKNOWN_TYPES = (0x1, 0x9, 0xB, 0xC)
-
-
-def _select_table() -> np.ndarray:
-    """``table[m, k]``: index of the k-th set bit of the 12-bit mask ``m`` (uint8, 4096 x 12)."""
-    bits = np.unpackbits(np.arange(4096, dtype="<u2").view(np.uint8).reshape(-1, 2), axis=1,
-                         bitorder="little")[:, :12]
-    table = np.zeros((4096, 12), np.uint8)
-    rows, cols = np.nonzero(bits)
-    n_set = bits.sum(1, dtype=np.int64)
-    rank = np.arange(len(rows)) - np.repeat(np.cumsum(n_set) - n_set, n_set)
-    table[rows, rank] = cols
-    return table
-
-
-_SET_BIT = _select_table()
-
-
-def _running(mask: np.ndarray) -> np.ndarray:
-    """Inclusive running count of ``mask`` (int32 when it fits: much faster than int64)."""
-    return np.cumsum(mask, dtype=np.int32 if len(mask) < (1 << 31) else np.int64)
-
-
-def _lookup(table: np.ndarray, run: np.ndarray, n_queries: int):
-    """``f(k)`` = value of ``table`` in force after state word ``k`` (``run`` indexes ``table``).
-
-    Materialises the per-state-word values when there are more queries than state words,
-    otherwise composes the two lookups per query.
-    """
-    if n_queries >= len(run):
-        per_state = table.take(run)
-        return per_state.take
-    return lambda k: table.take(run.take(k))
-
-
-def _running0(mask: np.ndarray) -> np.ndarray:
-    """Running count of ``mask`` with a leading 0: index into a table whose entry 0 is the prior state."""
-    out = np.empty(len(mask) + 1, np.int32 if len(mask) < (1 << 31) else np.int64)
-    out[0] = 0
-    np.cumsum(mask, out=out[1:])
-    return out
-
-
-def _time_lookup(styp, spay, st: DecoderState, w0: int, spos):
-    """Time (µs) in force after each state word, from its TIME_LOW / TIME_HIGH words.
-
-    ``styp`` / ``spay`` are the types / payloads of the batch's state words (positions
-    ``spos``). Returns ``make(n_queries)`` giving ``f(k)`` = time after state word ``k - 1``
-    (``k = 0``: the time before the batch), built for ``n_queries`` lookups (see
-    :func:`_lookup`). Updates the time part of ``st`` and its statistics.
-    """
-    is_th = styp == _TIME_HIGH
-    setter = styp == _TIME_LOW                  # words that set time_low (+ changed TIME_HIGH)
-    thsel = np.flatnonzero(is_th)
-    high_table = np.empty(len(thsel) + 1, np.int64)
-    high_table[0] = st.t_us >> 12
-    if len(thsel):
-        thv = spay.take(thsel).astype(np.int64)
-        step = np.diff(thv, prepend=st.th_raw)
-        wrap = step < -(TIME_HIGH_WRAP // 2)
-        loops = st.loops + np.cumsum(wrap)
-        np.add(thv, loops * TIME_HIGH_WRAP, out=high_table[1:])
-        back = (step < 0) & ~wrap
-        if back.any():
-            st.damage("time_backward", np.count_nonzero(back), w0 + int(spos[thsel[np.argmax(back)]]))
-        st.stats["time_jumps"] += int(np.count_nonzero(step > 1))
-        st.stats["time_loops"] += int(loops[-1] - st.loops)
-        st.th_raw, st.loops = int(thv[-1]), int(loops[-1])
-        # TIME_LOW resets to 0 when TIME_HIGH changes; a repeated TIME_HIGH keeps it.
-        setter[thsel[step != 0]] = True
-    low_sel = np.flatnonzero(setter)
-    low_table = np.empty(len(low_sel) + 1, np.int64)
-    low_table[0] = st.tl
-    low_table[1:] = spay.take(low_sel)
-    low_table[1:][is_th.take(low_sel)] = 0
-    st.tl = int(low_table[-1])
-    st.t_us = (int(high_table[-1]) << 12) | st.tl
-    h_run = _running0(is_th)
-    l_run = _running0(setter)
-
-    def make(n_queries: int):
-        if n_queries < len(h_run):
-            return lambda k: (high_table.take(h_run.take(k)) << 12) | low_table.take(l_run.take(k))
-        t_state = high_table.take(h_run)
-        t_state <<= 12
-        t_state |= low_table.take(l_run)
-        return t_state.take
-    return make
 
 
 def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.ndarray]:
@@ -138,11 +50,9 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
 
     Notes
     -----
-    The words that change decoder state (TIME_LOW/HIGH, ADDR_Y, VECT_BASE_X and the vector
-    words) are pulled out into a small "state table" where time, y and vector base are
-    forward-filled with running counts; every ADDR_X word then reads its state with one
-    index (its count of state words before it), and vector words expand through a
-    k-th-set-bit lookup table.
+    One compiled pass over the words (:func:`capture.raw._kernels.evt3`). Events are dropped
+    and counted when no ADDR_Y came before them (damage), when they are another system's, or
+    when outside the sensor (damage), in that order: each dropped event is counted once.
     """
     w = words
     w0 = st.words_seen
@@ -162,168 +72,7 @@ def decode_words(words: np.ndarray, st: DecoderState) -> tuple[np.ndarray, np.nd
         st.first_th = st.th_raw = int(w[0] & 0xFFF)
         st.t_us = st.th_raw << 12
         st.tl = 0
-    typ = w >> 12
-    pay = w & 0x0FFF
-    is_x = typ == _ADDR_X
-    is_vec = (typ >> 1) == (_VECT_12 >> 1)          # VECT_12 or VECT_8
-    is_state = (typ == _ADDR_Y) | (typ == _TIME_LOW) | (typ == _TIME_HIGH) | (typ == _VECT_BASE_X) | is_vec
-    is_tr = typ == _EXT_TRIGGER
-    n_x, n_vec, n_state, n_tr = (int(np.count_nonzero(m)) for m in (is_x, is_vec, is_state, is_tr))
-    n_rest = len(w) - n_x - n_state - n_tr         # OTHERS / CONTINUED / IMU / unknown words
-    if n_rest:
-        n_other = int(np.count_nonzero((typ == 0x7) | (typ >= 0xD)))
-        st.stats["others"] += n_other
-        n_unknown = n_rest - n_other
-        if n_unknown:
-            st.damage("unknown_words", n_unknown, w0 + int(np.argmax(np.isin(typ, _UNKNOWN_TYPES))))
-
-    # State table: time, y and vector base in force after each state word.
-    spos = np.flatnonzero(is_state)
-    styp = typ.take(spos)
-    spay = pay.take(spos)
-    make_time_at = _time_lookup(styp, spay, st, w0, spos)
-    s_is_y = styp == _ADDR_Y
-    y_sel = np.flatnonzero(s_is_y)
-    y_table = np.empty(len(y_sel) + 1, np.uint16)
-    y_table[0] = st.y
-    y_table[1:] = spay.take(y_sel)
-    y_run = _running0(s_is_y)
-    st.y = int(y_table[-1])
-
-    only_x_and_state = n_tr + n_rest == 0
-    if only_x_and_state:
-        def state_index(pos):                        # state words before each ADDR_X word
-            return pos - np.arange(len(pos))         # (every word before is a state word or ADDR_X)
-    else:
-        cs = _running(is_state)
-
-        def state_index(pos):
-            return cs.take(pos)
-
-    triggers = EMPTY_TRIGGERS
-    if n_tr:
-        tr = np.flatnonzero(is_tr)
-        tp = pay.take(tr)
-        triggers = triggers_from(make_time_at(len(tr))(cs.take(tr)), (tp >> 8) & 0xF, tp & 1)
-        st.stats["triggers"] += len(triggers)
-
-    vsel = np.flatnonzero((styp >> 1) == (_VECT_12 >> 1)) if n_vec else None
-    if n_vec:
-        v_base, v_pol, v_mask, v_count = _vector_words(styp, spay, vsel, st, w0, spos)
-    else:
-        vb = np.flatnonzero(styp == _VECT_BASE_X)
-        if len(vb):
-            last = int(spay[vb[-1]])
-            st.base_x, st.base_pol = last & 0x7FF, last >> 11
-    n_events = n_x + (int(v_count.sum()) if n_vec else 0)
-    if n_events == 0:
-        return EMPTY_EVENTS, triggers
-    t_at = make_time_at(n_events)
-    y_at = _lookup(y_table, y_run, n_events)
-
-    xpos = np.flatnonzero(is_x)
-    kx = state_index(xpos)
-    px = pay.take(xpos)
-    if n_vec == 0:
-        t = t_at(kx)
-        y = y_at(kx)
-        x = px & 0x7FF
-        p = px >> 11
-
-        def locate(i):
-            return w0 + int(xpos[i])
-    else:
-        # Insert each vector word's events among the ADDR_X events: ADDR_X words before
-        # vector word j = its position minus the state words before it (and other words).
-        vpos = spos.take(vsel)
-        x_before_v = vpos - vsel if only_x_and_state else np.searchsorted(xpos, vpos)
-        v_first = np.cumsum(v_count) - v_count
-        total = n_x + int(v_count.sum())
-        row = np.repeat(np.arange(len(vsel)), v_count)
-        at_v = (x_before_v + v_first).take(row) + (np.arange(len(row)) - v_first.take(row))
-        is_v_event = np.zeros(total, bool)
-        is_v_event[at_v] = True
-        at_x = np.flatnonzero(~is_v_event)
-        k = np.empty(total, kx.dtype)
-        k[at_x] = kx
-        k[at_v] = vsel.take(row) + 1
-        t = t_at(k)
-        y = y_at(k)
-        x = np.empty(total, np.uint16)
-        x[at_x] = px & 0x7FF
-        rank = np.arange(len(row)) - v_first.take(row)
-        x[at_v] = v_base.take(row) + _SET_BIT[v_mask.take(row), rank]
-        p = np.empty(total, np.uint16)
-        p[at_x] = px >> 11
-        p[at_v] = v_pol.take(row)
-
-        def locate(i):
-            j = np.searchsorted(at_v, i)
-            return w0 + int(vpos[row[j]] if j < len(at_v) and at_v[j] == i else xpos[np.searchsorted(at_x, i)])
-    keep = None
-    if int(y.max()) >= 2048:                     # no ADDR_Y yet (0xFFFF) or another system's
-        keep = y < 2048
-        none = y == 0xFFFF
-        if none.any():
-            st.damage("events_without_y", np.count_nonzero(none), locate(int(np.argmax(none))))
-        st.stats["events_other_system"] += int(len(y) - np.count_nonzero(keep) - np.count_nonzero(none))
-    bounds = in_bounds(x, y if keep is None else np.where(keep, y, 0), st, locate)
-    if bounds is not None:
-        keep = bounds if keep is None else keep & bounds
-    if keep is not None:
-        t, x, y, p = (a.compress(keep) for a in (t, x, y, p))
-        located = locate
-        locate = lambda i: located(int(np.flatnonzero(keep)[i]))  # noqa: E731 (index among the kept)
-    check_time_order(t, st, locate)
-    ev = make_events(len(t))
-    ev["t"] = t
-    xy = y.astype(np.uint32)
-    xy <<= 16
-    xy |= x
-    xy_view(ev)[:] = xy                          # x and y in one strided write
-    ev["p"] = p
-    st.stats["events"] += len(ev)
-    return ev, triggers
-
-
-def _vector_words(styp, spay, vsel, st: DecoderState, w0: int, spos):
-    """Base x, polarity, 12-bit mask and event count of every vector word (``vsel`` in the state table).
-
-    A vector word's base is its VECT_BASE_X plus the widths (12 / 8) of the vector words
-    between them; words with no VECT_BASE_X yet in the stream get no events (damage).
-    """
-    is12 = styp.take(vsel) == _VECT_12
-    widths = np.where(is12, 12, 8)
-    cw_excl = np.cumsum(widths) - widths
-    total = int(cw_excl[-1] + widths[-1])
-    mask = spay.take(vsel)
-    mask[~is12] &= 0xFF
-    s_is_vb = styp == _VECT_BASE_X
-    vb_sel = np.flatnonzero(s_is_vb)
-    if len(vb_sel):
-        vbpay = spay.take(vb_sel)
-        jb = _running(s_is_vb).take(vsel) - 1         # last VECT_BASE_X before each vector word
-        start_cw = np.append(cw_excl, total).take(np.searchsorted(vsel, vb_sel))
-        has = jb >= 0
-        jbc = np.maximum(jb, 0)
-        vb = vbpay.take(jbc)
-        base = np.where(has, (vb & 0x7FF).astype(np.int64) + cw_excl - start_cw.take(jbc), st.base_x + cw_excl)
-        pol = np.where(has, vb >> 11, st.base_pol)
-        no_base = ~has & (st.base_x < 0)
-        st.base_x = int(vbpay[-1] & 0x7FF) + total - int(start_cw[-1])
-        st.base_pol = int(vbpay[-1] >> 11)
-    else:
-        base = st.base_x + cw_excl
-        pol = np.full(len(vsel), st.base_pol)
-        no_base = np.full(len(vsel), st.base_x < 0)
-        if st.base_x >= 0:
-            st.base_x += total
-    if no_base.any():
-        st.damage("vectors_without_base", int(np.bitwise_count(mask[no_base]).sum()),
-                  w0 + int(spos[vsel[np.argmax(no_base)]]))
-        mask[no_base] = 0
-    count = np.bitwise_count(mask).astype(np.int64)
-    return np.minimum(base, 0xFFF0).astype(np.uint16), pol.astype(np.uint16), mask, count
+    return run_kernel(_kernels.evt3, (w,), st, w0, time_low_bits=12)
 
 
 def finish(st: DecoderState) -> None:

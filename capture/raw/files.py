@@ -16,7 +16,7 @@ from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
 from capture.raw.errors import RawDamageWarning, RawFormatError
 from capture.raw.header import header_bytes, normalize_format
-from capture.raw.stream import DEFAULT_CHUNK_BYTES, MAX_THREADS, WRAP_US, RawReader
+from capture.raw.stream import DEFAULT_CHUNK_BYTES, MAX_THREADS, PARALLEL_MIN_BYTES, WRAP_US, RawReader
 
 
 @dataclass
@@ -53,7 +53,7 @@ class RawFile:
 
 def read(path, *, time_shift: bool = False, strict: bool = False, format: str | None = None,
          width: int | None = None, height: int | None = None,
-         chunk_bytes: int = DEFAULT_CHUNK_BYTES, threads: int | None = None) -> RawFile:
+         chunk_bytes: int = PARALLEL_MIN_BYTES, threads: int | None = None) -> RawFile:
     """Read and decode a whole RAW file.
 
     Parameters
@@ -67,7 +67,9 @@ def read(path, *, time_shift: bool = False, strict: bool = False, format: str | 
     format, width, height : optional
         Override (or supply, for header-less files) the header's format and geometry.
     chunk_bytes : int
-        Bytes decoded per batch (bounds the temporaries, not the result).
+        Bytes decoded per batch. A file of fewer bytes than this and than
+        :data:`~capture.raw.stream.PARALLEL_MIN_BYTES` is decoded in one batch, straight into
+        the result (batches are joined, a copy, otherwise).
     threads : int, optional
         Parts of the file decoded at once (default: the machine's cores, at most 4); the
         result is the same for any number (see :class:`capture.raw.RawReader`).

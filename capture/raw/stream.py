@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
 from capture.raw import evt2, evt3
 from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, STAT_KEYS, DecoderState
 from capture.raw.errors import RawFormatError
@@ -25,9 +24,6 @@ WORD_BYTES = {"EVT2": 4, "EVT21": 8, "EVT3": 2}
 
 WRAP_US = {"EVT2": 1 << 34, "EVT21": 1 << 34, "EVT3": 1 << 24}
 """Period of the format's wrapping time base in µs."""
-
-BATCH_WORDS = 1 << 19
-"""Words decoded per NumPy pass; a larger ``decode`` call is split (bounds the temporaries)."""
 
 DEFAULT_CHUNK_BYTES = 1 << 20
 """Bytes read per batch when streaming a file (1 MiB: temporaries stay small and reusable)."""
@@ -136,9 +132,7 @@ class StreamDecoder:
             words = np.frombuffer(data, "<u4", n_words)
         else:
             words = np.frombuffer(data, "<u4", 2 * n_words).reshape(-1, 2)
-        parts = [self._decode_batch(words[i:i + BATCH_WORDS]) for i in range(0, n_words, BATCH_WORDS)]
-        events = concatenate([p[0] for p in parts if len(p[0])], EVENT_DTYPE)
-        triggers = concatenate([p[1] for p in parts if len(p[1])], TRIGGER_DTYPE)
+        events, triggers = self._decode_batch(words)
         shift = self.time_shift_us
         if shift and len(events):
             events["t"] -= shift
