@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.raw import evt2, evt3
+from capture.raw import _kernels, evt2, evt3
 from capture.raw._common import DAMAGE_KEYS, EMPTY_EVENTS, EMPTY_TRIGGERS, STAT_KEYS, DecoderState
 from capture.raw.errors import RawFormatError
 from capture.raw.header import MAX_HEADER_BYTES, normalize_format, parse_header
@@ -77,6 +77,7 @@ class StreamDecoder:
             raise RawFormatError(f"time_base_us={time_base_us} is not a multiple of the {self.format} "
                                  f"wrap period {wrap_us} us")
         self._state = DecoderState(width=width, height=height, loops=time_base_us // wrap_us)
+        _kernels.load(self.format)  # here, not in the first batch (a live stream would wait for it)
         self._time_base_us = int(time_base_us)
         self._tail = b""
         self.bytes_in = 0
