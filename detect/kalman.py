@@ -88,9 +88,14 @@ class CircleKalman:
         return f, q
 
     def predict(self, t_us: int) -> tuple[np.ndarray, np.ndarray]:
-        """State and covariance predicted to ``t_us`` (does not change the filter)."""
+        """State and covariance predicted to ``t_us`` (does not change the filter; an earlier time
+        extrapolates back)."""
         f, q = self._transition((t_us - self.t_us) * 1e-6)
         return f @ self.x, f @ self.P @ f.T + q
+
+    def propagate(self, x: np.ndarray, t_from_us: int, t_to_us: int) -> np.ndarray:
+        """State ``x`` (shape (7,)) at ``t_from_us`` moved by the motion model to ``t_to_us`` (either way)."""
+        return self._transition((t_to_us - t_from_us) * 1e-6)[0] @ x
 
     def innovation(self, t_us: int, z, sigma_px: float) -> float:
         """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""

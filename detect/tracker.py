@@ -159,6 +159,12 @@ def _velocity(a, b) -> tuple[float, float]:
     return (b[1].cx - a[1].cx) / dt_s, (b[1].cy - a[1].cy) / dt_s
 
 
+def _chain_start_us(chain) -> int:
+    """Time (µs) of a chain's first event on the ball: its first row's, at the latest."""
+    m, _, _, (ts, _, _), _ = chain[0]
+    return min(m, int(ts[0])) if len(ts) else m
+
+
 def _continues(chain, m: int, fit: CircleFit, width: int, height: int) -> bool:
     """Whether ``fit`` (a window centred at ``m`` µs) continues ``chain``, whose last detection is
     ``(t_us, fit, velocity px/s, ...)``: where that one's velocity predicts, same size.
@@ -270,6 +276,7 @@ class _Flight:
         self.n_final = 0  # updates whose rows are final
         self.near = np.zeros(0, np.intp)  # indices of this slice's events around the ball (its surround too)
         self.circle = (math.nan, math.nan, 0.0)  # predicted (cx, cy, r) px this slice
+        self.lead_us: int | None = None  # time of the row before the first update (a long first window)
 
 
 class BallTracker:
@@ -493,10 +500,10 @@ class BallTracker:
             if w.start_us is not None:
                 bound = min(bound, w.start_us)
         for chain in self._chains:
-            bound = min(bound, chain[0][0])
+            bound = min(bound, _chain_start_us(chain))
         for fl in self._flights:  # fits outside the gate may become a new flight's first rows
             if fl.outlier_fits:
-                bound = min(bound, fl.outlier_fits[0][0])
+                bound = min(bound, _chain_start_us(fl.outlier_fits))
         return bound
 
     # ------------------------------------------------------------------ blocks and slices
@@ -910,6 +917,12 @@ class BallTracker:
         self._flights.append(fl)
         fl.circle = (f0.cx, f0.cy, f0.r)
         fl.scores = [f0.score]
+        lead_us = _chain_start_us(chain)
+        if t0 - lead_us > self.slice_us:
+            # a first window longer than a slice (few events per second): the ball was seen from
+            # its first events on, half a window before the first update's time
+            fl.lead_us = lead_us
+            self._new_rows.append(self._row(fl, lead_us, kf.predict(lead_us)[0]))
         self._emit(fl, t0)
         for tm, f in rest:
             kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
@@ -957,9 +970,13 @@ class BallTracker:
 
     # ------------------------------------------------------------------ rows
     def _emit(self, fl: _Flight, t_us: int) -> None:
-        s = fl.kf.x
-        self._new_rows.append((t_us, s[0], s[1], s[6], s[2], s[3], fl.scores[-1], fl.number))
+        self._new_rows.append(self._row(fl, t_us, fl.kf.x))
         self._finalise(fl, ended=False)
+
+    @staticmethod
+    def _row(fl: _Flight, t_us: int, s: np.ndarray) -> tuple:
+        """A track row of flight ``fl`` at ``t_us`` from filter state ``s``, with its last score."""
+        return t_us, s[0], s[1], s[6], s[2], s[3], fl.scores[-1], fl.number
 
     def _take_rows(self) -> Track:
         rows, self._new_rows = self._new_rows, []
@@ -994,8 +1011,13 @@ class BallTracker:
             else:
                 t = np.array([h[0] for h in hist[start:final]], np.int64)
                 xs = np.array([h[4] for h in hist[start:final]])
+            score = fl.scores[start:final]
+            if start == 0 and fl.lead_us is not None:  # the row before the first update, from its state
+                t = np.insert(t, 0, fl.lead_us)
+                xs = np.vstack([kf.propagate(xs[0], t[1], fl.lead_us), xs])
+                score = score[:1] + score
             self._final.append(Track(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
-                                     score=fl.scores[start:final], flight=np.full(len(t), fl.number)))
+                                     score=score, flight=np.full(len(t), fl.number)))
             fl.n_final = final
 
 
