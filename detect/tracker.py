@@ -839,6 +839,12 @@ class BallTracker:
             ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
+            if (fit is None or fit.score < self.min_score) and s1 - start > self.slice_us and any(v0):
+                # a long window (few events per second): a slow ball whose events' drift gave a
+                # wrong velocity is a circle where they are not moved at all
+                still = self._fit(ts, xs, ys, m, None, (0.0, 0.0), self.r_range)
+                if still is not None and still.score >= self.min_score:
+                    fit, v0 = still, (0.0, 0.0)
             # a cluster of the fine map that is no circle may be a ball touching something
             split = not coarse and (fit is None or fit.score < self.min_score)
             if split:
