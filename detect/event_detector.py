@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from detect._kernels import sector_tops
+
 
 @dataclass(frozen=True)
 class CircleFit:
@@ -133,6 +135,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     CircleFit or None
         None if there are too few boundary points or the radius is out of range.
     """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
     n = len(x)
     if n < 3 * min_sector_events:
         return None
@@ -149,20 +152,16 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     n_in = 0
     k = k_outer
     for _ in range(n_iter):
-        dx, dy = x - cx, y - cy
-        rho2 = dx * dx + dy * dy
-        sector = ((np.arctan2(dy, dx) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
-        top = rho2.max() + 1.0
-        order = np.argsort(sector * top + rho2)
-        counts = np.bincount(sector, minlength=n_sectors)
-        ends = np.cumsum(counts)
+        # in each sector the k-th and the (k + gap_events)-th outermost event (one compiled pass)
+        counts, kth, kth_rho2, deep_rho2 = sector_tops(x, y, cx, cy, n_sectors, k, k + gap_events)
         ok = counts >= max(min_sector_events, k + gap_events)
         if ok.sum() < 5:
             return None
-        pick = order[ends[ok] - k]
+        pick = kth[ok]
         # local density correction: the k-th outermost lies about k gaps (in rho^2) inside the rim
-        gap = (rho2[pick] - rho2[order[ends[ok] - k - gap_events]]) / gap_events
-        scale = np.sqrt((rho2[pick] + k * gap) / np.maximum(rho2[pick], 1e-9))
+        rho2 = kth_rho2[ok]
+        gap = (rho2 - deep_rho2[ok]) / gap_events
+        scale = np.sqrt((rho2 + k * gap) / np.maximum(rho2, 1e-9))
         bx, by = cx + (x[pick] - cx) * scale, cy + (y[pick] - cy) * scale
         if ignore is not None:
             bx, by = bx[~ignore[pick]], by[~ignore[pick]]

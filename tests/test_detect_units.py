@@ -67,6 +67,23 @@ def _truth(t_us, c0, v, t0=0):
     return c0[0] + v[0] * dt, c0[1] + v[1] * dt
 
 
+def test_sector_tops_are_each_sectors_kth_and_deepest_outermost():
+    from detect._kernels import sector_tops
+
+    rng = np.random.default_rng(5)
+    x, y = np.rint(rng.normal(50, 12, 3000)), np.rint(rng.normal(40, 12, 3000))  # pixels: equal radii abound
+    cx, cy, n_sectors, k, depth = 50.3, 39.8, 24, 3, 7
+    counts, kth, kth_rho2, deep_rho2 = sector_tops(x, y, cx, cy, n_sectors, k, depth)
+    rho2 = (x - cx) ** 2 + (y - cy) ** 2
+    sector = ((np.arctan2(y - cy, x - cx) + np.pi) * (n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+    assert np.array_equal(counts, np.bincount(sector, minlength=n_sectors))
+    for s in range(n_sectors):
+        idx = np.flatnonzero(sector == s)
+        ranked = idx[np.lexsort((idx, -rho2[idx]))]  # outermost first; of equal radii the earlier event
+        assert kth[s] == ranked[k - 1] and kth_rho2[s] == rho2[ranked[k - 1]]
+        assert deep_rho2[s] == rho2[ranked[depth - 1]]
+
+
 @pytest.mark.parametrize("ring", [False, True])
 @pytest.mark.parametrize("r", [8.0, 30.0])
 def test_fit_circle_on_disk_and_rim(ring, r):
