@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, concatenate
+from capture.events import EVENT_DTYPE, TRIGGER_DTYPE, as_void, concatenate
 from capture.raw._common import STAT_KEYS, DecoderState
 
 _K = {key: i for i, key in enumerate(STAT_KEYS)}
@@ -330,8 +330,9 @@ def run_kernel(kernel, words: tuple, st: DecoderState, w0: int, time_low_bits: i
 
 
 def _trimmed(records: np.ndarray, n: int) -> np.ndarray:
-    """The first ``n`` records (a copy when half the array would be left unused: a view keeps it all)."""
-    return records[:n].copy() if n < len(records) // 2 else records[:n]
+    """The first ``n`` records (a copy when half the array would be left unused: a view keeps it all;
+    copied as raw bytes, 17x faster than NumPy's copy of packed records)."""
+    return as_void(records[:n]).copy().view(records.dtype) if n < len(records) // 2 else records[:n]
 
 
 def _read_only(words: np.ndarray) -> np.ndarray:
@@ -342,9 +343,15 @@ def _read_only(words: np.ndarray) -> np.ndarray:
     return view
 
 
+_LOADED: set[str] = set()
+
+
 def load(format: str) -> None:
     """Load the word loop of ``format`` (``"EVT2"``, ``"EVT21"``, ``"EVT3"``) now, not at the first
-    batch: from the cache (about 0.4 s once per process) or, the first time, compiled (seconds)."""
+    batch: from the cache (about 0.5 s once per process) or, the first time, compiled (seconds)."""
+    if format in _LOADED:
+        return
+    _LOADED.add(format)
     empty = np.zeros(0, np.uint32)
     if format == "EVT3":
         run_kernel(evt3, (np.zeros(0, np.uint16),), DecoderState(), 0, time_low_bits=12)
