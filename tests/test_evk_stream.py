@@ -234,3 +234,32 @@ def test_drops_are_counted_while_recording_for_a_watcher(tmp_path, shared_raw_di
         stats = evk.record(cam, tmp_path / "rec.raw", stats=progress)
     assert stats is progress and stats.dropped_bytes > 0
     assert max(seen) > 0  # seen while streaming
+
+
+def test_the_live_decoder_gathers_small_writes_into_batches(tmp_path, shared_raw_dir):
+    # bytes written in 64 small pieces over about 30 ms: a few batches for the consumer, not one per
+    # piece (a consumer's cost per batch counts: a batch per USB transfer held the GIL most of the time)
+    import time
+
+    from capture.evk.record import RecordStats, _FileDecoder
+
+    src = raw.RawReader(shared_raw_dir / "expelliarmus_evt3_sample_1280x720.raw")
+    src.close()
+    data = (shared_raw_dir / "expelliarmus_evt3_sample_1280x720.raw").read_bytes()
+    header, payload = data[:src.header_size], data[src.header_size:]
+    path = tmp_path / "live.raw"
+    batches = []
+    with path.open("wb", buffering=0) as f:
+        f.write(header)
+        dec = _FileDecoder(path, len(header), raw.StreamDecoder("EVT3", width=1280, height=720),
+                           lambda ev, tr: batches.append(ev), RecordStats(raw_path=path))
+        dec.start()
+        piece = -(-len(payload) // 64)
+        for i in range(0, len(payload), piece):
+            f.write(payload[i:i + piece])
+            dec.written(min(i + piece, len(payload)))
+            time.sleep(0.0005)
+        dec.close_input()
+        dec.join(10)
+    assert dec.error is None and 1 <= len(batches) <= 3
+    np.testing.assert_array_equal(np.concatenate(batches), raw.read(shared_raw_dir / "expelliarmus_evt3_sample_1280x720.raw").events)

@@ -123,6 +123,8 @@ class _FileDecoder(threading.Thread):
     """
 
     READ_BYTES = 1 << 20  # small batches: the GIL is held for a few ms at most per decode
+    WAIT_S = 0.05  # a batch waits this long for READ_BYTES to be written (a consumer's cost per batch
+    # counts: decoding as soon as bytes arrive made a batch of every USB transfer)
 
     def __init__(self, path: Path, offset: int, decoder: StreamDecoder, on_batch, stats: RecordStats):
         super().__init__(name="evk-decoder", daemon=True)
@@ -152,8 +154,10 @@ class _FileDecoder(threading.Thread):
         try:
             while True:
                 with self._cond:
-                    while pos >= self._available and not self._closed:
-                        self._cond.wait(0.1)
+                    due = time.monotonic() + self.WAIT_S
+                    while not self._closed and (self._available - pos < self.READ_BYTES
+                                                and (pos >= self._available or time.monotonic() < due)):
+                        self._cond.wait(max(0.0, min(0.1, due - time.monotonic())) or 0.1)
                     if pos >= self._available and self._closed:
                         break
                     end = self._available
