@@ -60,3 +60,14 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
         if counts[s] >= depth:
             deep_rho2[s] = top_rho2[s, depth - 1]
     return counts, kth, kth_rho2, deep_rho2
+
+
+def load() -> None:
+    """Load the compiled loop now (from the cache: about 0.5 s once per process, holding the GIL),
+    not in the first fit: a tracker made before a recording streams pays it before the stream."""
+    if not _LOADED:
+        sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 12, 1, 2)
+        _LOADED.append(True)
+
+
+_LOADED: list = []

@@ -43,6 +43,7 @@ import math
 import numpy as np
 
 from capture.events import EVENT_DTYPE, Track, concatenate
+from detect import _kernels
 from detect.event_detector import (CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle,
                                    hough_circles)
 from detect.frame_detector import FrameDetector
@@ -339,6 +340,7 @@ class BallTracker:
                  max_window_us: int = 40_000, flicker_hz: float | None = None):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
+        _kernels.load()  # here, not in the first fit (a live stream would wait for it)
         if slice_us <= 0 or block_us % slice_us:
             raise ValueError(f"block_us ({block_us}) must be a positive multiple of slice_us ({slice_us})")
         if max_window_us < slice_us or max_window_us % slice_us:
