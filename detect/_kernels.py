@@ -8,6 +8,7 @@ for that took most of a fit; here one pass keeps each sector's ``depth`` outermo
 from __future__ import annotations
 
 import math
+import threading
 
 import numba
 import numpy as np
@@ -64,10 +65,13 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
 
 def load() -> None:
     """Load the compiled loop now (from the cache: about 0.5 s once per process, holding the GIL),
-    not in the first fit: a tracker made before a recording streams pays it before the stream."""
-    if not _LOADED:
-        sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 12, 1, 2)
-        _LOADED.append(True)
+    not in the first fit: a tracker made before a recording streams pays it before the stream. A
+    second thread asking meanwhile waits for it."""
+    with _LOADING:
+        if not _LOADED:
+            sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 12, 1, 2)
+            _LOADED.add(True)
 
 
-_LOADED: list = []
+_LOADED: set = set()
+_LOADING = threading.Lock()

@@ -135,7 +135,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     CircleFit or None
         None if there are too few boundary points or the radius is out of range.
     """
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    x, y = np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64)  # (one compiled version)
     n = len(x)
     if n < 3 * min_sector_events:
         return None

@@ -237,8 +237,9 @@ def test_drops_are_counted_while_recording_for_a_watcher(tmp_path, shared_raw_di
 
 
 def test_the_live_decoder_gathers_small_writes_into_batches(tmp_path, shared_raw_dir):
-    # bytes written in 64 small pieces over about 30 ms: a few batches for the consumer, not one per
-    # piece (a consumer's cost per batch counts: a batch per USB transfer held the GIL most of the time)
+    # bytes written in 64 small pieces: one batch for the consumer, not one per piece (a consumer's
+    # cost per batch counts: a batch per USB transfer held the GIL most of the time); the batch waits
+    # for 1 MiB (more than this recording holds) or the end of the input
     import time
 
     from capture.evk.record import RecordStats, _FileDecoder
@@ -253,6 +254,7 @@ def test_the_live_decoder_gathers_small_writes_into_batches(tmp_path, shared_raw
         f.write(header)
         dec = _FileDecoder(path, len(header), raw.StreamDecoder("EVT3", width=1280, height=720),
                            lambda ev, tr: batches.append(ev), RecordStats(raw_path=path))
+        dec.WAIT_S = 10.0  # (not the 50 ms of a recording: no timing in this test)
         dec.start()
         piece = -(-len(payload) // 64)
         for i in range(0, len(payload), piece):
@@ -260,6 +262,8 @@ def test_the_live_decoder_gathers_small_writes_into_batches(tmp_path, shared_raw
             dec.written(min(i + piece, len(payload)))
             time.sleep(0.0005)
         dec.close_input()
+        t_closed = time.monotonic()
         dec.join(10)
-    assert dec.error is None and 1 <= len(batches) <= 3
+    assert time.monotonic() - t_closed < 5 and not dec.is_alive()  # the end of the input ends the wait
+    assert dec.error is None and len(batches) == 1
     np.testing.assert_array_equal(np.concatenate(batches), raw.read(shared_raw_dir / "expelliarmus_evt3_sample_1280x720.raw").events)

@@ -10,6 +10,8 @@ indices). Word layouts are documented in :mod:`capture.raw.evt3` and :mod:`captu
 
 from __future__ import annotations
 
+import threading
+
 import numba
 import numpy as np
 
@@ -344,16 +346,19 @@ def _read_only(words: np.ndarray) -> np.ndarray:
 
 
 _LOADED: set[str] = set()
+_LOADING = threading.Lock()
 
 
 def load(format: str) -> None:
     """Load the word loop of ``format`` (``"EVT2"``, ``"EVT21"``, ``"EVT3"``) now, not at the first
-    batch: from the cache (about 0.5 s once per process) or, the first time, compiled (seconds)."""
-    if format in _LOADED:
-        return
-    _LOADED.add(format)
-    empty = np.zeros(0, np.uint32)
-    if format == "EVT3":
-        run_kernel(evt3, (np.zeros(0, np.uint16),), DecoderState(), 0, time_low_bits=12)
-    else:
-        run_kernel(evt2, (empty, None if format == "EVT2" else empty), DecoderState(), 0, time_low_bits=6)
+    batch: from the cache (about 0.5 s once per process) or, the first time, compiled (seconds).
+    A second thread asking meanwhile waits for it."""
+    with _LOADING:
+        if format in _LOADED:
+            return
+        empty = np.zeros(0, np.uint32)
+        if format == "EVT3":
+            run_kernel(evt3, (np.zeros(0, np.uint16),), DecoderState(), 0, time_low_bits=12)
+        else:
+            run_kernel(evt2, (empty, None if format == "EVT2" else empty), DecoderState(), 0, time_low_bits=6)
+        _LOADED.add(format)
