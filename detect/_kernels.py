@@ -7,8 +7,8 @@ for that took most of a fit; here one pass keeps each sector's ``depth`` outermo
 
 from __future__ import annotations
 
+import functools
 import math
-import threading
 
 import numba
 import numpy as np
@@ -63,15 +63,9 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
     return counts, kth, kth_rho2, deep_rho2
 
 
+@functools.cache
 def load() -> None:
     """Load the compiled loop now (from the cache: about 0.5 s once per process, holding the GIL),
-    not in the first fit: a tracker made before a recording streams pays it before the stream. A
-    second thread asking meanwhile waits for it."""
-    with _LOADING:
-        if not _LOADED:
-            sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 12, 1, 2)
-            _LOADED.add(True)
-
-
-_LOADED: set = set()
-_LOADING = threading.Lock()
+    not in the first fit: a tracker made before a recording streams pays it before the stream.
+    Once per process (a second thread asking meanwhile waits on Numba's lock)."""
+    sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 12, 1, 2)

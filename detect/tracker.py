@@ -340,13 +340,13 @@ class BallTracker:
                  max_window_us: int = 40_000, flicker_hz: float | None = None):
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got width={width}, height={height}")
-        _kernels.load()  # here, not in the first fit (a live stream would wait for it)
         if slice_us <= 0 or block_us % slice_us:
             raise ValueError(f"block_us ({block_us}) must be a positive multiple of slice_us ({slice_us})")
         if max_window_us < slice_us or max_window_us % slice_us:
             raise ValueError(f"max_window_us ({max_window_us}) must be a positive multiple of slice_us ({slice_us})")
         if not 0 < r_range[0] < r_range[1]:
             raise ValueError(f"r_range must be (min, max) with 0 < min < max, got {r_range}")
+        _kernels.load()  # here, not in the first fit (a live stream would wait for it)
         self.width, self.height = int(width), int(height)
         self.slice_us, self.block_us = int(slice_us), int(block_us)
         self.r_range = (float(r_range[0]), float(r_range[1]))

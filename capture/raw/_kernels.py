@@ -10,7 +10,7 @@ indices). Word layouts are documented in :mod:`capture.raw.evt3` and :mod:`captu
 
 from __future__ import annotations
 
-import threading
+import functools
 
 import numba
 import numpy as np
@@ -42,6 +42,15 @@ def _put(ev, n, t, x, y, p):
     e.x = x
     e.y = y
     e.p = p
+
+
+@numba.njit(**_JIT)
+def _put_trigger(tr, m, t, channel, value):
+    """Write trigger ``m``."""
+    r = tr[m]
+    r.t = t
+    r.id = channel
+    r.p = value
 
 
 @numba.njit(**_JIT)
@@ -170,10 +179,7 @@ def evt3(words, start, w0, width, height, state, stats, ev, tr):
             if m == len(tr):
                 stop = i
                 break
-            r = tr[m]
-            r.t = t
-            r.id = (pay >> 8) & 0xF
-            r.p = pay & 1
+            _put_trigger(tr, m, t, (pay >> 8) & 0xF, pay & 1)
             m += 1
         elif typ == 0x7 or typ >= 0xD:
             stats[K_OTHERS] += 1
@@ -271,10 +277,7 @@ def evt2(head, mask, start, w0, width, height, state, stats, ev, tr):
             if m == len(tr):
                 stop = i
                 break
-            r = tr[m]
-            r.t = (high << 6) | ((w >> 22) & 0x3F)
-            r.id = (w >> 8) & 0x1F
-            r.p = w & 1
+            _put_trigger(tr, m, (high << 6) | ((w >> 22) & 0x3F), (w >> 8) & 0x1F, w & 1)
             m += 1
         elif typ >= 0xD:
             stats[K_OTHERS] += 1
@@ -345,20 +348,13 @@ def _read_only(words: np.ndarray) -> np.ndarray:
     return view
 
 
-_LOADED: set[str] = set()
-_LOADING = threading.Lock()
-
-
+@functools.cache
 def load(format: str) -> None:
     """Load the word loop of ``format`` (``"EVT2"``, ``"EVT21"``, ``"EVT3"``) now, not at the first
     batch: from the cache (about 0.5 s once per process) or, the first time, compiled (seconds).
-    A second thread asking meanwhile waits for it."""
-    with _LOADING:
-        if format in _LOADED:
-            return
-        empty = np.zeros(0, np.uint32)
-        if format == "EVT3":
-            run_kernel(evt3, (np.zeros(0, np.uint16),), DecoderState(), 0, time_low_bits=12)
-        else:
-            run_kernel(evt2, (empty, None if format == "EVT2" else empty), DecoderState(), 0, time_low_bits=6)
-        _LOADED.add(format)
+    Once per format and process (a second thread asking meanwhile waits on Numba's lock)."""
+    empty = np.zeros(0, np.uint32)
+    if format == "EVT3":
+        run_kernel(evt3, (np.zeros(0, np.uint16),), DecoderState(), 0, time_low_bits=12)
+    else:
+        run_kernel(evt2, (empty, None if format == "EVT2" else empty), DecoderState(), 0, time_low_bits=6)

@@ -26,7 +26,7 @@ WRAP_US = {"EVT2": 1 << 34, "EVT21": 1 << 34, "EVT3": 1 << 24}
 """Period of the format's wrapping time base in µs."""
 
 DEFAULT_CHUNK_BYTES = 1 << 20
-"""Bytes read per batch when streaming a file (1 MiB: temporaries stay small and reusable)."""
+"""Bytes read per batch when streaming a file (1 MiB: a batch's output arrays stay small and reusable)."""
 
 
 MAX_TIME_BASE_US = 1 << 62
