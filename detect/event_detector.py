@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from detect._kernels import sector_tops
+from detect._kernels import rim_fit
 
 
 @dataclass(frozen=True)
@@ -51,28 +51,6 @@ class CircleFit:
     sigma_px: float
     n_events: int
     coverage: float = 1.0
-
-
-def _kasa(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Algebraic least-squares (Kasa) circle through points ``(x, y)`` -> ``(cx, cy, r)``."""
-    mx, my = x.sum() / len(x), y.sum() / len(y)  # = mean(), without its wrapper's overhead
-    u, v = x - mx, y - my
-    suu, svv, suv = u @ u, v @ v, u @ v
-    z = u * u + v * v
-    suz, svz = u @ z, v @ z
-    det = suu * svv - suv * suv
-    if det <= 1e-12:
-        return float(mx), float(my), 0.0
-    a = 0.5 * (suz * svv - svz * suv) / det
-    b = 0.5 * (svz * suu - suz * suv) / det
-    return float(mx + a), float(my + b), float(np.sqrt(a * a + b * b + (suu + svv) / len(x)))
-
-
-def _median(a: np.ndarray) -> float:
-    """Median of a short 1-D array (``np.median``'s value at a fraction of its overhead)."""
-    s = np.sort(a)
-    n = len(s)
-    return 0.5 * float(s[(n - 1) // 2] + s[n // 2])
 
 
 def _count_image(x: np.ndarray, y: np.ndarray, pad: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -146,45 +124,11 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         sub = (np.arange(max_events) * step).astype(np.int64)
         x, y = x[sub], y[sub]
         ignore = None if ignore is None else ignore[sub]
-    cx, cy = float(center0[0]), float(center0[1])
-    r = np.nan
-    rms = np.inf
-    n_in = 0
-    k = k_outer
-    for _ in range(n_iter):
-        # in each sector the k-th and the (k + gap_events)-th outermost event (one compiled pass)
-        counts, kth, kth_rho2, deep_rho2 = sector_tops(x, y, cx, cy, n_sectors, k, k + gap_events)
-        ok = counts >= max(min_sector_events, k + gap_events)
-        if ok.sum() < 5:
-            return None
-        pick = kth[ok]
-        # local density correction: the k-th outermost lies about k gaps (in rho^2) inside the rim
-        rho2 = kth_rho2[ok]
-        gap = (rho2 - deep_rho2[ok]) / gap_events
-        scale = np.sqrt((rho2 + k * gap) / np.maximum(rho2, 1e-9))
-        bx, by = cx + (x[pick] - cx) * scale, cy + (y[pick] - cy) * scale
-        if ignore is not None:
-            bx, by = bx[~ignore[pick]], by[~ignore[pick]]
-        keep = np.ones(len(bx), bool)
-        for _ in range(3):
-            if keep.sum() < 5:
-                return None
-            fcx, fcy, fr = _kasa(bx[keep], by[keep])
-            res = np.hypot(bx - fcx, by - fcy) - fr
-            mad = _median(np.abs(res[keep]))
-            new_keep = np.abs(res) <= max(1.5, 3.0 * 1.4826 * mad)
-            if np.array_equal(new_keep, keep):
-                break
-            keep = new_keep
-        n_keep = int(np.count_nonzero(keep))
-        if n_keep < 5:
-            return None
-        moved = np.hypot(fcx - cx, fcy - cy)
-        cx, cy, r = fcx, fcy, fr
-        rms = float(np.sqrt(np.sum(res[keep] ** 2) / n_keep))
-        n_in = n_keep
-        if moved < 0.05:  # sectors would not change
-            break
+    ignore = np.zeros(len(x), np.bool_) if ignore is None else np.ascontiguousarray(ignore, np.bool_)
+    found, cx, cy, r, rms, n_in = rim_fit(x, y, ignore, float(center0[0]), float(center0[1]), n_sectors, k_outer,
+                                          gap_events, min_sector_events, n_iter)
+    if not found:
+        return None
     if not (r_range[0] <= r <= r_range[1]):
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2

@@ -84,6 +84,19 @@ def test_sector_tops_are_each_sectors_kth_and_deepest_outermost():
         assert deep_rho2[s] == rho2[ranked[depth - 1]]
 
 
+@pytest.mark.parametrize("n_sectors", [12, 13, 26, 32])
+def test_sector_tops_places_events_on_a_quadrant_in_the_sector_holding_it(n_sectors):
+    from detect._kernels import sector_tops
+
+    # straight left, down, right and up of the centre: angles (+ pi) 0, pi/2, pi, 3 pi/2 (float formulas
+    # put some of these one sector early)
+    x, y = np.array([40.0, 50.0, 60.0, 50.0]), np.array([50.0, 40.0, 50.0, 60.0])
+    counts = [sector_tops(x[i:i + 1], y[i:i + 1], 50.0, 50.0, n_sectors, 1, 1)[0] for i in range(4)]
+    for quarter, c in enumerate(counts):
+        expected = quarter * n_sectors // 4  # the sector holding the angle quarter * pi/2
+        assert np.flatnonzero(c).tolist() == [expected]
+
+
 @pytest.mark.parametrize("ring", [False, True])
 @pytest.mark.parametrize("r", [8.0, 30.0])
 def test_fit_circle_on_disk_and_rim(ring, r):
