@@ -49,6 +49,14 @@ FAST_EVENTS = 24_000
 LEVELS = ((1.5, 12.0, 1.2, 500, 2, 1e-4), (1.5, 40.0, 1.0, 2500, 6, 3e-4), (1.5, 100.0, 0.55, 8000, 6, 1e-6))
 # the cross-check's parts must agree with the whole window within these (deg, ratio) for full trust
 CHECK_ANGLE_DEG, CHECK_RATIO = 5.0, 1.05
+# trust in the whole window's answer falls from full to none as its parts' largest deviation from it
+# grows from the first to the second of these (in units of those limits).  On the benchmark's tuning
+# seeds (0-3) 90 % of the trusted windows that were right had parts within 0.6 of the limits, the
+# wrong ones at 0.9 and 1.1 (and 0.8: see QUARTER_QUORUM); (1.0, 1.6) trusted them
+TRUST_WORST_FULL, TRUST_WORST_ZERO = 0.9, 1.4
+# of a window checked on quarters, at least this many quarters' own searches must find the whole's answer
+# for full trust (on the tuning seeds, one of the two trusted windows with a single such quarter was wrong)
+QUARTER_QUORUM = 2
 # a part whose answer strays more than this many times those limits from the whole window's after a
 # level (the first level, the second-last) refines it no further: the cross-check then refines it again
 # beside the whole's answer (:func:`_half_answer`).  The first level's answers on windows of little
@@ -199,16 +207,17 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     ``QUARTERS_FROM_RAD``: there a sparse or symmetric texture can alias alike in both halves).
     Where a part's answer strays, the whole window's answer refined on that part replaces it if it
     scores at least as high there (:func:`_half_answer`).  The confidence of the whole window's
-    answer is scaled by ``clip((1.6 - worst) / 0.6, 0, 1)``, ``worst`` being the largest of the
-    parts' deviations from it in units of (``CHECK_ANGLE_DEG``, ``log CHECK_RATIO``): 1 while all
-    parts lie within 5 deg / 5 %, 0.5 at 1.3 times that, 0 beyond 1.6 times; and by ``clip(1.75 - spread, 0, 1)``,
-    ``spread`` the larger of the uncertainties in units of 2.5 deg / 2.5 %.  Halves of fewer than
-    ``min_half_events`` events cannot check: the confidence is then halved.  The product is halved
-    too where no quarter's own search found the whole window's answer: every quarter then agreed
-    only through the whole's answer refined on it, and a sparse texture seen over many turns can
-    align as well on a wrong spin in each (a one-logo ball 33 deg off at 800 rps, its four quarters
-    "agreeing").  The product is squared (see the code): a window is trusted (0.5) only while its 2 sigma stays within about
-    5 deg / 5 % and every part within about 6 deg / 6 % of its answer.
+    answer is scaled by ``clip((TRUST_WORST_ZERO - worst) / (TRUST_WORST_ZERO - TRUST_WORST_FULL), 0, 1)``,
+    ``worst`` being the largest of the parts' deviations from it in units of (``CHECK_ANGLE_DEG``,
+    ``log CHECK_RATIO``): 1 while all parts lie within 4.5 deg / 4.5 %, 0 beyond 7 deg / 7 %; and by
+    ``clip(1.75 - spread, 0, 1)``, ``spread`` the larger of the uncertainties in units of 2.5 deg / 2.5 %.
+    Halves of fewer than ``min_half_events`` events cannot check: the confidence is then halved.  The
+    product is halved too where fewer than ``QUARTER_QUORUM`` quarters' own searches found the whole
+    window's answer: the others agreed only through the whole's answer refined on them, and a sparse or
+    symmetric texture seen over many turns can align as well on a wrong spin in each (a one-logo ball
+    33 deg off at 800 rps with its four quarters "agreeing", a tennis ball 57 deg off at 1,200 rps with
+    one).  The product is squared (see the code): a window is trusted (0.5) only while its 2 sigma stays
+    within about 5 deg / 5 % and every part within about 5 deg / 5 % of its answer.
 
     The uncertainty (1 sigma) is the difference of the first and the last part scaled by ``SIGMA_SCALE_AXIS`` /
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; the rate's also holds,
@@ -249,8 +258,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     spread = max(axis_sigma / (0.5 * CHECK_ANGLE_DEG), rps_sigma / (50.0 * (CHECK_RATIO - 1.0)))
     # squared: on the benchmark's tuning seeds the product's windows between 0.5 and 0.7 were right only
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
-    confidence = (whole.confidence * float(np.clip((1.6 - worst) / 0.6, 0.0, 1.0))
-                  * float(np.clip(1.75 - spread, 0.0, 1.0)) * (0.5 if n_parts == 4 and not found else 1.0)) ** 2
+    agree = float(np.clip((TRUST_WORST_ZERO - worst) / (TRUST_WORST_ZERO - TRUST_WORST_FULL), 0.0, 1.0))
+    confidence = (whole.confidence * agree * float(np.clip(1.75 - spread, 0.0, 1.0))
+                  * (0.5 if n_parts == 4 and found < QUARTER_QUORUM else 1.0)) ** 2
     return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma,
                    rps_lag_pct=lag)
 

@@ -37,6 +37,8 @@ def ball():
     ((4.0, 30.0), (1.0, 1.0), "flagged"),     # a half lands on another axis
     ((1.0, 1.0), (1.0, 2.0), "flagged"),      # a half lands on another speed (an alias)
     ((0.0, 0.0), (1.0, 1.12), "flagged"),     # halves 12 % apart: 2 sigma of the rate exceeds 5 %
+    ((4.0, 4.0), (1.0, 1.0), "trusted"),      # halves agree, 4 deg from the whole: within its limits
+    ((5.5, 5.5), (1.0, 1.0), "flagged"),      # halves agree, but 5.5 deg from the whole
 ])
 def test_cross_check_scales_the_confidence(monkeypatch, ball, half_angles_deg, half_ratios, expect):
     ev, _ = ball
@@ -57,7 +59,8 @@ def test_cross_check_scales_the_confidence(monkeypatch, ball, half_angles_deg, h
     if expect == "trusted":
         spread = max(res.axis_sigma_deg, res.rps_sigma_pct) / 2.5
         assert res.confidence == pytest.approx(min(1.0, 1.75 - spread) ** 2) and res.confidence >= 0.5
-        assert res.axis_sigma_deg == pytest.approx(max(fast.SIGMA_SCALE_AXIS * 2.0, fast.SIGMA_FLOOR_DEG), rel=1e-6)
+        apart = abs(half_angles_deg[0] - half_angles_deg[1])  # (both turn about the same axis)
+        assert res.axis_sigma_deg == pytest.approx(max(fast.SIGMA_SCALE_AXIS * apart, fast.SIGMA_FLOOR_DEG), rel=1e-6)
         assert res.rps_sigma_pct == fast.SIGMA_FLOOR_PCT
     else:
         assert res.confidence < 0.5
@@ -155,17 +158,17 @@ def test_window_over_many_turns_is_checked_on_quarters(monkeypatch, ball):
     assert res.confidence < 0.5
 
 
-@pytest.mark.parametrize("found_alone", [0, 1])
+@pytest.mark.parametrize("found_alone", [0, 1, 2])
 def test_quarters_agreeing_only_through_the_whole_are_no_check(monkeypatch, ball, found_alone):
     # every quarter's own search lands 30 deg off, but the whole's answer refined on each quarter
-    # scores as high there: the quarters then agree only through it (a sparse texture over many
-    # turns); one quarter that finds it on its own restores the trust
+    # scores as high there: the quarters then agree only through it (a sparse or symmetric texture
+    # over many turns); two quarters that find it on their own restore the trust, one does not
     ev, _ = ball
     calls, res = _many_turns(monkeypatch, ev, lambda k, w: w if k <= found_alone else _rotated(w, 30.0),
                              lambda half, own, whole, **_: whole.w_rad_s)
     assert len(calls) == 5
     assert res.axis_sigma_deg == fast.SIGMA_FLOOR_DEG  # the parts all read the whole's answer
-    if found_alone:
+    if found_alone >= fast.QUARTER_QUORUM:
         assert res.confidence >= 0.5
     else:
         assert res.confidence <= 0.25
