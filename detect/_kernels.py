@@ -1,4 +1,4 @@
-"""Compiled loops of the rim fit (Numba).
+"""Compiled loops of the rim fit, the hot-pixel map and the circle's Kalman filter (Numba).
 
 :func:`detect.event_detector.fit_circle` needs, in each sector around the current centre, the
 ``k``-th and the ``depth``-th outermost event (:func:`sector_tops`: one pass keeps each sector's
@@ -6,7 +6,10 @@
 sector from a pseudo-angle, where ``atan2`` took half of that pass), and
 then fits a circle to those boundary points with outlier rejection, a few times over
 (:func:`rim_fit`: in NumPy, a fit's dozens of calls on arrays of 12-32 points cost more than its
-arithmetic).
+arithmetic); :func:`hot_update` updates :class:`detect.hot_pixels.HotPixelMap` from one block's
+events without a pass over every pixel of the sensor; ``kf_*`` and :func:`rts_gain` do the 7-state
+filter's algebra for :class:`detect.kalman.CircleKalman` (a dozen NumPy calls per update on 7x7 arrays
+cost more than their arithmetic).
 """
 
 from __future__ import annotations
@@ -221,9 +224,99 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
     return True, cx, cy, r, rms, n_in
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def hot_update(stored, gain, pixel, cand, mark, stamp, hot, width, height, min_count, ratio):
+    """Add one block's events to the ``stored`` counts (true count = stored * ``gain``, gain already
+    decayed for this block), clear the hot flags of the previous candidates ``cand`` and set them
+    anew on the pixels now at ``min_count`` or more (previous candidates and pixels hit in this block:
+    no other can have risen) that are ``ratio`` times their 8 neighbours' mean.  Returns the new
+    candidates, in no particular order; ``mark`` (int64 per pixel) holds ``stamp`` for them."""
+    add = 1.0 / gain
+    for p in pixel:
+        stored[p] += add
+    limit = min_count / gain
+    out = np.empty(len(cand) + len(pixel), np.int64)
+    n = 0
+    for p in cand:
+        hot[p] = False
+        if stored[p] >= limit and mark[p] != stamp:
+            mark[p] = stamp
+            out[n] = p
+            n += 1
+    for p in pixel:
+        if stored[p] >= limit and mark[p] != stamp:
+            mark[p] = stamp
+            out[n] = p
+            n += 1
+    for i in range(n):
+        p = out[i]
+        py, px = divmod(p, width)
+        nb = 0.0
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                yy, xx = py + dy, px + dx
+                if (dy or dx) and 0 <= yy < height and 0 <= xx < width:
+                    nb += stored[yy * width + xx]
+        hot[p] = stored[p] >= ratio * nb / 8.0
+    return out[:n].copy()
+
+
+_STATE_MEASURED = (0, 1, 6)  # the circle filter's measured states: cx, cy, r
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def kf_predict(f, q, x, p):
+    """Kalman prediction: ``(f @ x, f @ p @ f.T + q)`` (state (7,), covariance (7, 7))."""
+    return f @ x, f @ p @ f.T + q
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def kf_update(f, q, x, p, z, r_var):
+    """Kalman prediction by ``(f, q)`` and fusion of the measurement ``z = (cx, cy, r)`` (variances
+    ``r_var``, (3,)) of states 0, 1 and 6.  Returns the prior state and covariance and the posterior's
+    (the posterior covariance symmetrised)."""
+    xp = f @ x
+    pp = f @ p @ f.T + q
+    hp = np.empty((3, 7))
+    s = np.empty((3, 3))
+    for i in range(3):
+        hp[i] = pp[_STATE_MEASURED[i]]
+        for j in range(3):
+            s[i, j] = hp[i, _STATE_MEASURED[j]]
+        s[i, i] += r_var[i]
+    k = np.linalg.solve(s, hp).T  # (7, 3)
+    nu = np.empty(3)
+    for i in range(3):
+        nu[i] = z[i] - xp[_STATE_MEASURED[i]]
+    x_post = xp + k @ nu
+    p_post = pp - k @ hp
+    return xp, pp, x_post, 0.5 * (p_post + p_post.T)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def kf_mahalanobis(x, p, zx, zy, var):
+    """Squared Mahalanobis distance of the centre ``(zx, zy)`` from state ``x`` (covariance ``p``),
+    the measurement's variance ``var`` per axis added."""
+    a, b, d = p[0, 0] + var, p[0, 1], p[1, 1] + var
+    u, v = zx - x[0], zy - x[1]
+    return (d * u * u - 2.0 * b * u * v + a * v * v) / (a * d - b * b)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def rts_gain(p_post, f_next, p_prior_next):
+    """Rauch-Tung-Striebel smoother gain ``p_post @ f_next.T @ pinv(p_prior_next)``."""
+    return p_post @ f_next.T @ np.linalg.pinv(p_prior_next)
+
+
 @functools.cache
 def load() -> None:
-    """Load the compiled loop now (from the cache: about 0.5 s once per process, holding the GIL),
-    not in the first fit: a tracker made before a recording streams pays it before the stream.
+    """Load the compiled loops now (from the cache: about 0.5 s once per process, holding the GIL),
+    not in the first fit or block: a tracker made before a recording streams pays it before the stream.
     Once per process (a second thread asking meanwhile waits on Numba's lock)."""
     rim_fit(np.zeros(1), np.zeros(1), np.zeros(1, np.bool_), 0.0, 0.0, 12, 1, 2, 1, 1)
+    hot_update(np.zeros(1), 1.0, np.zeros(1, np.int32), np.zeros(0, np.int64), np.zeros(1, np.int64), 1,
+               np.zeros(1, np.bool_), 1, 1, 1.0, 1.0)
+    eye = np.eye(7)
+    kf_update(eye, eye, np.zeros(7), eye, np.zeros(3), np.ones(3))
+    kf_mahalanobis(*kf_predict(eye, eye, np.zeros(7), eye), 0.0, 0.0, 1.0)
+    rts_gain(eye, eye, eye)

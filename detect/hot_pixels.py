@@ -11,6 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from detect._kernels import hot_update
+
+# the counts are kept divided by the decay so far (one multiplication per update, not one per pixel),
+# and brought back to scale once that divisor would pass this
+_RESCALE_BELOW = 1e-6
+
 
 class HotPixelMap:
     """Running hot-pixel mask of a ``width`` x ``height`` sensor.
@@ -31,30 +37,22 @@ class HotPixelMap:
                  ratio: float = 8.0):
         self.width, self.height = int(width), int(height)
         self.decay, self.min_count, self.ratio = float(decay), float(min_count), float(ratio)
-        self.counts = np.zeros((self.height, self.width), np.float32)
+        self._stored = np.zeros(self.height * self.width)  # counts / _gain
+        self._gain = 1.0
         self.hot = np.zeros(self.height * self.width, bool)
-        self._cand = np.zeros(0, np.int64)
+        self._cand = np.zeros(0, np.int64)  # pixels at min_count or more at the last update
+        self._mark = np.zeros(self.height * self.width, np.int64)  # the update that last listed each
+        self._stamp = 0
 
     def update(self, pixel: np.ndarray) -> None:
         """Add one block's events (flat pixel indices ``y * width + x``) and refresh the mask."""
-        flat = self.counts.reshape(-1)
-        flat *= self.decay
-        flat += np.bincount(pixel, minlength=flat.size)
-        self.hot[self._cand] = False
-        # only pixels busy enough can be hot: test their 8 neighbours sparsely
-        cand = np.flatnonzero(flat >= self.min_count)
-        self._cand = cand
-        if len(cand) == 0:
-            return
-        cy, cx = np.divmod(cand, self.width)
-        nb = np.zeros(len(cand), np.float32)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy or dx:
-                    yy, xx = cy + dy, cx + dx
-                    ok = (yy >= 0) & (yy < self.height) & (xx >= 0) & (xx < self.width)
-                    nb[ok] += flat[yy[ok] * self.width + xx[ok]]
-        self.hot[cand[flat[cand] >= self.ratio * nb / 8.0]] = True
+        self._gain *= self.decay
+        if self._gain < _RESCALE_BELOW:
+            self._stored *= self._gain
+            self._gain = 1.0
+        self._stamp += 1
+        self._cand = hot_update(self._stored, self._gain, np.asarray(pixel), self._cand, self._mark, self._stamp,
+                                self.hot, self.width, self.height, self.min_count, self.ratio)
 
     def keep(self, pixel: np.ndarray) -> np.ndarray:
         """Mask of events (flat pixel indices) not on a hot pixel."""

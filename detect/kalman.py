@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-_H = np.zeros((3, 7))
-_H[0, 0] = _H[1, 1] = _H[2, 6] = 1.0
+from detect._kernels import kf_mahalanobis, kf_predict, kf_update, rts_gain
 
 
 class CircleKalman:
@@ -91,7 +90,7 @@ class CircleKalman:
         """State and covariance predicted to ``t_us`` (does not change the filter; an earlier time
         extrapolates back)."""
         f, q = self._transition((t_us - self.t_us) * 1e-6)
-        return f @ self.x, f @ self.P @ f.T + q
+        return kf_predict(f, q, self.x, self.P)
 
     def propagate(self, x: np.ndarray, t_from_us: int, t_to_us: int) -> np.ndarray:
         """State ``x`` (shape (7,)) at ``t_from_us`` moved by the motion model to ``t_to_us`` (either way)."""
@@ -100,21 +99,14 @@ class CircleKalman:
     def innovation(self, t_us: int, z, sigma_px: float) -> float:
         """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""
         x, p = self.predict(t_us)
-        nu = np.asarray(z[:2], float) - x[:2]
-        s = p[:2, :2] + np.eye(2) * sigma_px ** 2
-        return float(nu @ np.linalg.solve(s, nu))
+        return float(kf_mahalanobis(x, p, float(z[0]), float(z[1]), float(sigma_px) ** 2))
 
     def update(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> None:
         """Predict to ``t_us`` and fuse measurement ``z = (cx, cy, r)``."""
         f, q = self._transition((t_us - self.t_us) * 1e-6)
-        xp = f @ self.x
-        pp = f @ self.P @ f.T + q
-        r = np.diag([sigma_px ** 2, sigma_px ** 2, sigma_r_px ** 2])
-        s = _H @ pp @ _H.T + r
-        k = np.linalg.solve(s, _H @ pp).T
-        self.x = xp + k @ (np.asarray(z, float) - _H @ xp)
-        self.P = (np.eye(7) - k @ _H) @ pp
-        self.P = 0.5 * (self.P + self.P.T)
+        var = float(sigma_px) ** 2
+        xp, pp, self.x, self.P = kf_update(f, q, self.x, self.P, np.asarray(z, np.float64),
+                                           np.array([var, var, float(sigma_r_px) ** 2]))
         self.t_us = int(t_us)
         self.history.append((self.t_us, xp, pp, f, self.x.copy(), self.P.copy()))
 
@@ -124,7 +116,7 @@ class CircleKalman:
             j = len(self._gains)
             _, _, _, _, _, pj = self.history[j]
             _, _, pp1, f1, _, _ = self.history[j + 1]
-            self._gains.append(pj @ f1.T @ np.linalg.pinv(pp1))
+            self._gains.append(rts_gain(pj, f1, pp1))
         return self._gains[k]
 
     def smoothed(self, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -180,6 +180,30 @@ def test_hot_pixel_map_flags_lonely_busy_pixels_only():
     assert keep.tolist() == [False, True, True]
 
 
+def test_hot_pixel_map_follows_its_decaying_count_model_over_many_updates():
+    # the map keeps its counts divided by the decay so far and rescales them now and then: over 300
+    # updates (past a rescale) its mask is the model's, recomputed here on every pixel
+    rng = np.random.default_rng(9)
+    w, h, decay, min_count, ratio = 40, 30, 0.9, 6.0, 8.0
+    hm = HotPixelMap(w, h, decay=decay, min_count=min_count, ratio=ratio)
+    counts = np.zeros((h, w))
+    hot_px = rng.integers(0, w * h, 6)
+    for k in range(300):
+        busy = rng.integers(0, w * h, rng.integers(0, 400))  # noise and, now and then, a blob
+        if k % 7 == 0:
+            busy = np.r_[busy, (rng.integers(5, 25) * w + rng.integers(5, 35) + rng.integers(-2, 3, 300)
+                                + w * rng.integers(-2, 3, 300))]
+        pixel = np.r_[busy, np.repeat(hot_px[: 1 + k % 6], rng.integers(0, 4))]
+        hm.update(pixel)
+        counts = decay * counts + np.bincount(pixel, minlength=w * h).reshape(h, w)
+        padded = np.pad(counts, 1)
+        nb = sum(padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                 if dy or dx)
+        expected = (counts >= min_count) & (counts >= ratio * nb / 8.0)
+        assert np.array_equal(hm.hot.reshape(h, w), expected), k
+    assert 0 < expected.sum() <= 6
+
+
 def test_kalman_recovers_constant_acceleration_and_smooths():
     rng = np.random.default_rng(6)
     t = np.arange(0, 40_000, 2000)
