@@ -38,8 +38,9 @@ def _pseudo_angle(dx, dy):
 def sector_tops(x, y, cx, cy, n_sectors, k, depth):
     """Per angular sector around ``(cx, cy)``: its events, and its ``k``-th and ``depth``-th outermost.
 
-    Sector of an event: ``floor((atan2(y - cy, x - cx) + pi) n_sectors / 2 pi) mod n_sectors``, found
-    exactly on the boundaries (an event straight left of the centre is in sector 0, not n - 1).
+    Sector of an event: ``floor((atan2(y - cy, x - cx) + pi) n_sectors / 2 pi) mod n_sectors``, exact on
+    the boundaries at multiples of pi/4 (an event straight left of the centre is in sector 0, not
+    n - 1), elsewhere up to rounding.
 
     Parameters
     ----------
@@ -62,14 +63,14 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
         q, rem = divmod(4 * j, n_sectors)
         a = 0.5 * math.pi * rem / n_sectors
         bound[j] = q + math.sin(a) / (math.sin(a) + math.cos(a))
-    bound[n_sectors] = 4.0
+    bound[n_sectors] = np.inf  # (d may round to 4.0 just below straight left)
     per_quadrant = n_sectors / 4.0
     for i in range(len(x)):
         dx = x[i] - cx
         dy = y[i] - cy
         r2 = dx * dx + dy * dy
         d = _pseudo_angle(-dx, -dy)  # the angle + pi
-        s = min(np.int64(d * per_quadrant), n_sectors - 1)  # within one of the right sector
+        s = min(max(np.int64(d * per_quadrant), 0), n_sectors - 1)  # within one of the right sector
         while bound[s + 1] <= d:
             s += 1
         while s > 0 and bound[s] > d:
@@ -131,24 +132,29 @@ def _kasa(x, y, keep):
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n_iter):
-    """The rim as a circle through each sector's boundary point, refitted around the new centre.
+    """The rim as a circle through each sector's boundary point, fitted again around each new centre.
 
     Each of ``n_iter`` rounds: in each sector around ``(cx, cy)`` holding at least
     ``max(min_sector_events, k + gap_events)`` events, the ``k``-th outermost event moved outwards
     by ``k`` times the mean gap (in squared radius) to the next ``gap_events`` events (an order
     statistic's inward bias, whatever the local density) is a boundary point, unless ``ignore``
-    marks it; a Kasa circle through them, refitted up to 3 times on the points within
-    ``max(1.5 px, 3 MAD)`` of it. Rounds stop once the centre moves less than 0.05 px.
+    marks it; a Kasa circle is fitted through them up to 3 times, each time on the points within
+    ``max(1.5 px, 3 MAD)`` of the last. Rounds stop once the centre moves less than 0.05 px.
 
     Parameters
     ----------
     x, y : (N,) float64 event positions, px.
     ignore : (N,) bool, events that cannot be boundary points.
     cx, cy : float, starting centre, px.
+    n_sectors : int, angular sectors around the centre.
+    k, gap_events : int, the boundary point's rank from outside and the events below it that give
+        its gap correction.
+    min_sector_events : int, least events for a sector to give a point.
+    n_iter : int, most rounds.
 
     Returns
     -------
-    found : bool, False where fewer than 5 boundary points are left.
+    found : bool, False where fewer than 5 sectors qualify or fewer than 5 boundary points are left.
     cx, cy, r : float, the circle, px.
     rms : float, the kept boundary points' RMS distance from it, px.
     n_in : int, boundary points kept.
@@ -181,7 +187,8 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
             m += 1
         if n_ok < 5:
             return False, cx, cy, r, rms, n_in
-        keep[:m] = True
+        for j in range(m):
+            keep[j] = True
         n_keep = m
         fcx = fcy = fr = 0.0
         for _ in range(3):
@@ -196,7 +203,13 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
                 if keep[j]:
                     dev[q] = abs(res[j])
                     q += 1
-            dev.sort()
+            for a in range(1, n_keep):  # insertion sort: at most 32 values
+                v = dev[a]
+                b = a - 1
+                while b >= 0 and dev[b] > v:
+                    dev[b + 1] = dev[b]
+                    b -= 1
+                dev[b + 1] = v
             mad = 0.5 * (dev[(n_keep - 1) // 2] + dev[n_keep // 2])
             limit = max(1.5, 3.0 * 1.4826 * mad)
             same = True
@@ -207,7 +220,8 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
                 same = same and new_keep[j] == keep[j]
             if same:
                 break
-            keep[:m] = new_keep[:m]
+            for j in range(m):
+                keep[j] = new_keep[j]
             n_keep = n_new
         if n_keep < 5:
             return False, cx, cy, r, rms, n_in
@@ -226,11 +240,29 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def hot_update(stored, gain, pixel, cand, mark, stamp, hot, width, height, min_count, ratio):
-    """Add one block's events to the ``stored`` counts (true count = stored * ``gain``, gain already
-    decayed for this block), clear the hot flags of the previous candidates ``cand`` and set them
-    anew on the pixels now at ``min_count`` or more (previous candidates and pixels hit in this block:
-    no other can have risen) that are ``ratio`` times their 8 neighbours' mean.  Returns the new
-    candidates, in no particular order; ``mark`` (int64 per pixel) holds ``stamp`` for them."""
+    """One update of :class:`detect.hot_pixels.HotPixelMap` from a block's events.
+
+    Adds the events to the ``stored`` counts, clears the hot flags of the previous candidates and sets
+    them anew on the pixels now at ``min_count`` or more (previous candidates and pixels hit in this
+    block: with a decay of at most 1 no other can have risen) that hold ``ratio`` times their 8
+    neighbours' mean.
+
+    Parameters
+    ----------
+    stored : (height * width,) float64, counts / ``gain``; updated in place.
+    gain : float, the decay so far (this block's included).
+    pixel : (N,) int, flat pixel index ``y * width + x`` of each event.
+    cand : (M,) int64, the previous update's candidates.
+    mark, stamp : (height * width,) int64 and int: a pixel listed in this update gets ``mark = stamp``
+        (``stamp`` new per update).
+    hot : (height * width,) bool, the mask; updated in place.
+    width, height : int, sensor size, px.
+    min_count, ratio : float, the map's thresholds.
+
+    Returns
+    -------
+    (K,) int64, this update's candidates, in no particular order.
+    """
     add = 1.0 / gain
     for p in pixel:
         stored[p] += add
@@ -265,38 +297,103 @@ _STATE_MEASURED = (0, 1, 6)  # the circle filter's measured states: cx, cy, r
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
+def _propagated(f, q, x, p):
+    """``(f @ x, f @ p @ f.T + q)`` in plain loops (7 states: BLAS calls cost more than the sums, and
+    compiling them several seconds)."""
+    n = len(x)
+    fx = np.zeros(n)
+    fp = np.zeros((n, n))
+    for i in range(n):
+        for k in range(n):
+            fik = f[i, k]
+            if fik != 0.0:
+                fx[i] += fik * x[k]
+                for j in range(n):
+                    fp[i, j] += fik * p[k, j]
+    out = q.copy()
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += fp[i, k] * f[j, k]
+            out[i, j] += acc
+    return fx, out
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
 def kf_predict(f, q, x, p):
-    """Kalman prediction: ``(f @ x, f @ p @ f.T + q)`` (state (7,), covariance (7, 7))."""
-    return f @ x, f @ p @ f.T + q
+    """Kalman prediction of state ``x`` (n,) and covariance ``p`` (n, n) by transition ``f`` and
+    process noise ``q`` (n, n): ``(f @ x, f @ p @ f.T + q)``."""
+    return _propagated(f, q, x, p)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def kf_update(f, q, x, p, z, r_var):
-    """Kalman prediction by ``(f, q)`` and fusion of the measurement ``z = (cx, cy, r)`` (variances
-    ``r_var``, (3,)) of states 0, 1 and 6.  Returns the prior state and covariance and the posterior's
-    (the posterior covariance symmetrised)."""
-    xp = f @ x
-    pp = f @ p @ f.T + q
-    hp = np.empty((3, 7))
-    s = np.empty((3, 3))
+    """Kalman prediction by ``(f, q)`` and fusion of the measurement ``z = (cx, cy, r)`` of states 0, 1
+    and 6 of the circle's filter.
+
+    Parameters
+    ----------
+    f, q : (7, 7) float64, transition and process noise.
+    x, p : (7,), (7, 7) float64, the state and covariance before.
+    z, r_var : (3,) float64, the measurement (px) and its variances (px^2).
+
+    Returns
+    -------
+    xp, pp : the prior state and covariance; x_post, p_post : the posterior's (``p_post`` symmetrised).
+    """
+    xp, pp = _propagated(f, q, x, p)
+    hp = np.empty((3, 7))  # H pp
+    s = np.empty((3, 3))  # H pp H^T + R
     for i in range(3):
-        hp[i] = pp[_STATE_MEASURED[i]]
+        for a in range(7):
+            hp[i, a] = pp[_STATE_MEASURED[i], a]
         for j in range(3):
             s[i, j] = hp[i, _STATE_MEASURED[j]]
         s[i, i] += r_var[i]
-    k = np.linalg.solve(s, hp).T  # (7, 3)
+    inv = np.empty((3, 3))  # s^-1 by cofactors (s is 3x3, symmetric positive definite)
+    inv[0, 0] = s[1, 1] * s[2, 2] - s[1, 2] * s[2, 1]
+    inv[0, 1] = s[0, 2] * s[2, 1] - s[0, 1] * s[2, 2]
+    inv[0, 2] = s[0, 1] * s[1, 2] - s[0, 2] * s[1, 1]
+    inv[1, 0] = s[1, 2] * s[2, 0] - s[1, 0] * s[2, 2]
+    inv[1, 1] = s[0, 0] * s[2, 2] - s[0, 2] * s[2, 0]
+    inv[1, 2] = s[0, 2] * s[1, 0] - s[0, 0] * s[1, 2]
+    inv[2, 0] = s[1, 0] * s[2, 1] - s[1, 1] * s[2, 0]
+    inv[2, 1] = s[0, 1] * s[2, 0] - s[0, 0] * s[2, 1]
+    inv[2, 2] = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    det = s[0, 0] * inv[0, 0] + s[0, 1] * inv[1, 0] + s[0, 2] * inv[2, 0]
     nu = np.empty(3)
     for i in range(3):
         nu[i] = z[i] - xp[_STATE_MEASURED[i]]
-    x_post = xp + k @ nu
-    p_post = pp - k @ hp
-    return xp, pp, x_post, 0.5 * (p_post + p_post.T)
+    gain = np.zeros((7, 3))  # (s^-1 H pp)^T
+    for a in range(7):
+        for i in range(3):
+            acc = 0.0
+            for j in range(3):
+                acc += inv[i, j] * hp[j, a]
+            gain[a, i] = acc / det
+    x_post = xp.copy()
+    p_post = np.empty((7, 7))
+    for a in range(7):
+        for i in range(3):
+            x_post[a] += gain[a, i] * nu[i]
+        for b in range(7):
+            acc = pp[a, b]
+            for i in range(3):
+                acc -= gain[a, i] * hp[i, b]
+            p_post[a, b] = acc
+    for a in range(7):
+        for b in range(a + 1, 7):
+            m = 0.5 * (p_post[a, b] + p_post[b, a])
+            p_post[a, b] = m
+            p_post[b, a] = m
+    return xp, pp, x_post, p_post
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def kf_mahalanobis(x, p, zx, zy, var):
-    """Squared Mahalanobis distance of the centre ``(zx, zy)`` from state ``x`` (covariance ``p``),
-    the measurement's variance ``var`` per axis added."""
+    """Squared Mahalanobis distance of the centre ``(zx, zy)`` (px) from state ``x`` (its first two
+    entries, covariance ``p``), the measurement's variance ``var`` (px^2) added on each axis."""
     a, b, d = p[0, 0] + var, p[0, 1], p[1, 1] + var
     u, v = zx - x[0], zy - x[1]
     return (d * u * u - 2.0 * b * u * v + a * v * v) / (a * d - b * b)
@@ -304,14 +401,16 @@ def kf_mahalanobis(x, p, zx, zy, var):
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def rts_gain(p_post, f_next, p_prior_next):
-    """Rauch-Tung-Striebel smoother gain ``p_post @ f_next.T @ pinv(p_prior_next)``."""
+    """Rauch-Tung-Striebel smoother gain ``p_post @ f_next.T @ pinv(p_prior_next)`` (all (n, n); the
+    pseudo-inverse: a ``"cv"`` filter's pinned acceleration leaves the prior covariance singular)."""
     return p_post @ f_next.T @ np.linalg.pinv(p_prior_next)
 
 
 @functools.cache
 def load() -> None:
-    """Load the compiled loops now (from the cache: about 0.5 s once per process, holding the GIL),
-    not in the first fit or block: a tracker made before a recording streams pays it before the stream.
+    """Load the compiled loops now (from the cache: about 0.5 s once per process, holding the GIL; after
+    an install or an upgrade, compiling them first takes several seconds), not in the first fit or
+    block: a tracker made before a recording streams pays it before the stream.
     Once per process (a second thread asking meanwhile waits on Numba's lock)."""
     rim_fit(np.zeros(1), np.zeros(1), np.zeros(1, np.bool_), 0.0, 0.0, 12, 1, 2, 1, 1)
     hot_update(np.zeros(1), 1.0, np.zeros(1, np.int32), np.zeros(0, np.int64), np.zeros(1, np.int64), 1,

@@ -1,6 +1,7 @@
 """Ball detection in short slices of events (1-2 ms).
 
-Two steps, both vectorised over the events of a slice:
+Two steps over the events of a slice (the density map in NumPy and OpenCV, the rim fit compiled in
+:mod:`detect._kernels`):
 
 * :func:`find_candidates` builds a coarse event-density map (cells of
   ``cell_px`` pixels), thresholds it against the slice's noise level and keeps

@@ -37,6 +37,10 @@ class HotPixelMap:
                  ratio: float = 8.0):
         self.width, self.height = int(width), int(height)
         self.decay, self.min_count, self.ratio = float(decay), float(min_count), float(ratio)
+        if not 0.0 <= self.decay <= 1.0:
+            raise ValueError(f"decay must be within [0, 1], got {decay}")
+        if not self.min_count > 0.0:
+            raise ValueError(f"min_count must be > 0, got {min_count}")
         self._stored = np.zeros(self.height * self.width)  # counts / _gain
         self._gain = 1.0
         self.hot = np.zeros(self.height * self.width, bool)

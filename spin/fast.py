@@ -51,8 +51,9 @@ LEVELS = ((1.5, 12.0, 1.2, 500, 2, 1e-4), (1.5, 40.0, 1.0, 2500, 6, 3e-4), (1.5,
 CHECK_ANGLE_DEG, CHECK_RATIO = 5.0, 1.05
 # trust in the whole window's answer falls from full to none as its parts' largest deviation from it
 # grows from the first to the second of these (in units of those limits).  On the benchmark's tuning
-# seeds (0-3) 90 % of the trusted windows that were right had parts within 0.6 of the limits, the
-# wrong ones at 0.9 and 1.1 (and 0.8: see QUARTER_QUORUM); (1.0, 1.6) trusted them
+# seeds (0-3) 90 % of the trusted windows that were right had parts within 0.6 of the limits, and
+# (1.0, 1.6) trusted wrong ones at 1.05-1.1, which (0.9, 1.4) does not (two more, at 0.8 and 0.9, had a
+# single quarter finding the answer: see QUARTER_QUORUM)
 TRUST_WORST_FULL, TRUST_WORST_ZERO = 0.9, 1.4
 # of a window checked on quarters, at least this many quarters' own searches must find the whole's answer
 # for full trust (on the tuning seeds, one of the two trusted windows with a single such quarter was wrong)

@@ -180,20 +180,22 @@ def test_hot_pixel_map_flags_lonely_busy_pixels_only():
     assert keep.tolist() == [False, True, True]
 
 
-def test_hot_pixel_map_follows_its_decaying_count_model_over_many_updates():
-    # the map keeps its counts divided by the decay so far and rescales them now and then: over 300
-    # updates (past a rescale) its mask is the model's, recomputed here on every pixel
+@pytest.mark.parametrize("decay, n_updates, hot_most", [(0.9, 300, 4), (0.5, 1100, 9)])
+def test_hot_pixel_map_follows_its_decaying_count_model_over_many_updates(decay, n_updates, hot_most):
+    # the map keeps its counts divided by the decay so far and rescales them now and then: over many
+    # updates (at 0.5, far past the decay's float64 underflow) its mask is the model's, recomputed here
+    # on every pixel
     rng = np.random.default_rng(9)
-    w, h, decay, min_count, ratio = 40, 30, 0.9, 6.0, 8.0
+    w, h, min_count, ratio = 40, 30, 6.0, 8.0
     hm = HotPixelMap(w, h, decay=decay, min_count=min_count, ratio=ratio)
     counts = np.zeros((h, w))
     hot_px = rng.integers(0, w * h, 6)
-    for k in range(300):
+    for k in range(n_updates):
         busy = rng.integers(0, w * h, rng.integers(0, 400))  # noise and, now and then, a blob
         if k % 7 == 0:
             busy = np.r_[busy, (rng.integers(5, 25) * w + rng.integers(5, 35) + rng.integers(-2, 3, 300)
                                 + w * rng.integers(-2, 3, 300))]
-        pixel = np.r_[busy, np.repeat(hot_px[: 1 + k % 6], rng.integers(0, 4))]
+        pixel = np.r_[busy, np.repeat(hot_px[: 1 + k % 6], rng.integers(0, hot_most))]
         hm.update(pixel)
         counts = decay * counts + np.bincount(pixel, minlength=w * h).reshape(h, w)
         padded = np.pad(counts, 1)
@@ -202,6 +204,40 @@ def test_hot_pixel_map_follows_its_decaying_count_model_over_many_updates():
         expected = (counts >= min_count) & (counts >= ratio * nb / 8.0)
         assert np.array_equal(hm.hot.reshape(h, w), expected), k
     assert 0 < expected.sum() <= 6
+
+
+def test_hot_pixel_map_refuses_thresholds_its_update_cannot_keep():
+    for kw in ({"decay": 1.5}, {"decay": -0.1}, {"min_count": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            HotPixelMap(10, 10, **kw)
+
+
+def test_compiled_kalman_algebra_is_the_textbook_filter():
+    from detect._kernels import kf_mahalanobis, kf_predict, kf_update, rts_gain
+
+    rng = np.random.default_rng(11)
+    h = np.zeros((3, 7))
+    h[0, 0] = h[1, 1] = h[2, 6] = 1.0
+    for _ in range(20):
+        f = np.eye(7) + rng.normal(0, 0.01, (7, 7))
+        a, b = rng.normal(size=(7, 7)), rng.normal(size=(7, 7))
+        p, q = a @ a.T + np.eye(7), 0.1 * (b @ b.T)
+        x, z, r_var = rng.normal(size=7), rng.normal(size=3), rng.uniform(0.1, 2.0, 3)
+        xp, pp = f @ x, f @ p @ f.T + q
+        np.testing.assert_allclose(kf_predict(f, q, x, p)[0], xp, rtol=1e-12)
+        np.testing.assert_allclose(kf_predict(f, q, x, p)[1], pp, rtol=1e-12)
+        k = np.linalg.solve(h @ pp @ h.T + np.diag(r_var), h @ pp).T
+        p_post = (np.eye(7) - k @ h) @ pp
+        out = kf_update(f, q, x, p, z, r_var)
+        np.testing.assert_allclose(out[0], xp, rtol=1e-12)
+        np.testing.assert_allclose(out[2], xp + k @ (z - h @ xp), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(out[3], 0.5 * (p_post + p_post.T), rtol=1e-9, atol=1e-12)
+        nu, s = z[:2] - xp[:2], pp[:2, :2] + np.eye(2) * r_var[0]
+        assert kf_mahalanobis(xp, pp, z[0], z[1], r_var[0]) == pytest.approx(nu @ np.linalg.solve(s, nu), rel=1e-10)
+        singular = p.copy()
+        singular[4, :] = singular[:, 4] = 0.0  # a pinned state, as in the "cv" model
+        np.testing.assert_allclose(rts_gain(p, f, singular), p @ f.T @ np.linalg.pinv(singular), rtol=1e-8,
+                                   atol=1e-12)
 
 
 def test_kalman_recovers_constant_acceleration_and_smooths():

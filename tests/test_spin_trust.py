@@ -168,7 +168,7 @@ def test_quarters_agreeing_only_through_the_whole_are_no_check(monkeypatch, ball
                              lambda half, own, whole, **_: whole.w_rad_s)
     assert len(calls) == 5
     assert res.axis_sigma_deg == fast.SIGMA_FLOOR_DEG  # the parts all read the whole's answer
-    if found_alone >= fast.QUARTER_QUORUM:
+    if found_alone >= 2:
         assert res.confidence >= 0.5
     else:
         assert res.confidence <= 0.25
