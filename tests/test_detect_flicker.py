@@ -112,8 +112,8 @@ def lit_flight():
 
 def test_the_tracker_finds_the_ball_under_a_flickering_light_when_told_its_frequency(lit_flight):
     rec = lit_flight
-    # not told, it loses the ball in the light's events for part of the flight (0.90; 0.82 with the hot-pixel
-    # map that counted in float32 and flagged other flickering pixels)
+    # not told, it loses the ball in the light's events for part of the flight (0.90; 0.82 with the previous
+    # hot-pixel map, float32 counts decayed pixel by pixel)
     assert _recall(track_ball(rec.events, width=640, height=480), rec) < 0.95
     assert _recall(track_ball(rec.events, width=640, height=480, flicker_hz=100.0), rec) > 0.95
 
