@@ -70,7 +70,8 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
         dy = y[i] - cy
         r2 = dx * dx + dy * dy
         d = _pseudo_angle(-dx, -dy)  # the angle + pi
-        s = min(max(np.int64(d * per_quadrant), 0), n_sectors - 1)  # within one of the right sector
+        t = d * per_quadrant
+        s = min(np.int64(t), n_sectors - 1) if t > 0.0 else 0  # within one of the right sector (0: NaN)
         while bound[s + 1] <= d:
             s += 1
         while s > 0 and bound[s] > d:
@@ -351,27 +352,25 @@ def kf_update(f, q, x, p, z, r_var):
         for j in range(3):
             s[i, j] = hp[i, _STATE_MEASURED[j]]
         s[i, i] += r_var[i]
-    inv = np.empty((3, 3))  # s^-1 by cofactors (s is 3x3, symmetric positive definite)
-    inv[0, 0] = s[1, 1] * s[2, 2] - s[1, 2] * s[2, 1]
-    inv[0, 1] = s[0, 2] * s[2, 1] - s[0, 1] * s[2, 2]
-    inv[0, 2] = s[0, 1] * s[1, 2] - s[0, 2] * s[1, 1]
-    inv[1, 0] = s[1, 2] * s[2, 0] - s[1, 0] * s[2, 2]
-    inv[1, 1] = s[0, 0] * s[2, 2] - s[0, 2] * s[2, 0]
-    inv[1, 2] = s[0, 2] * s[1, 0] - s[0, 0] * s[1, 2]
-    inv[2, 0] = s[1, 0] * s[2, 1] - s[1, 1] * s[2, 0]
-    inv[2, 1] = s[0, 1] * s[2, 0] - s[0, 0] * s[2, 1]
-    inv[2, 2] = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-    det = s[0, 0] * inv[0, 0] + s[0, 1] * inv[1, 0] + s[0, 2] * inv[2, 0]
+    # s = L L^T (Cholesky: s is symmetric positive definite; as accurate as an LU solve, where
+    # cofactors lose digits with the square of s's condition number)
+    l00 = math.sqrt(s[0, 0])
+    l10 = s[1, 0] / l00
+    l20 = s[2, 0] / l00
+    l11 = math.sqrt(s[1, 1] - l10 * l10)
+    l21 = (s[2, 1] - l20 * l10) / l11
+    l22 = math.sqrt(s[2, 2] - l20 * l20 - l21 * l21)
     nu = np.empty(3)
     for i in range(3):
         nu[i] = z[i] - xp[_STATE_MEASURED[i]]
-    gain = np.zeros((7, 3))  # (s^-1 H pp)^T
+    gain = np.empty((7, 3))  # (s^-1 H pp)^T: per column of H pp, forward then back substitution
     for a in range(7):
-        for i in range(3):
-            acc = 0.0
-            for j in range(3):
-                acc += inv[i, j] * hp[j, a]
-            gain[a, i] = acc / det
+        y0 = hp[0, a] / l00
+        y1 = (hp[1, a] - l10 * y0) / l11
+        y2 = (hp[2, a] - l20 * y0 - l21 * y1) / l22
+        gain[a, 2] = y2 / l22
+        gain[a, 1] = (y1 - l21 * gain[a, 2]) / l11
+        gain[a, 0] = (y0 - l10 * gain[a, 1] - l20 * gain[a, 2]) / l00
     x_post = xp.copy()
     p_post = np.empty((7, 7))
     for a in range(7):

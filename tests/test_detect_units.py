@@ -97,6 +97,18 @@ def test_sector_tops_places_events_on_a_quadrant_in_the_sector_holding_it(n_sect
         assert np.flatnonzero(c).tolist() == [expected]
 
 
+def test_sector_tops_keeps_every_event_in_its_sectors_on_edge_inputs():
+    from detect._kernels import sector_tops
+
+    # just below straight left of the centre the pseudo-angle rounds to 4.0 (the last sector's end)
+    counts, kth, _, _ = sector_tops(np.array([0.0, 0.0]), np.array([1e-17, 1e-17]), 1.0, 0.0, 12, 1, 2)
+    assert counts.tolist() == [0] * 11 + [2] and kth[11] == 0
+    # a NaN centre: every event still counted in some sector (none written past the arrays)
+    x, y = np.arange(5.0), np.arange(5.0)
+    assert sector_tops(x, y, np.nan, 0.0, 12, 1, 2)[0].sum() == len(x)
+    assert sector_tops(x, y, np.inf, -np.inf, 12, 1, 2)[0].sum() == len(x)
+
+
 @pytest.mark.parametrize("ring", [False, True])
 @pytest.mark.parametrize("r", [8.0, 30.0])
 def test_fit_circle_on_disk_and_rim(ring, r):
@@ -232,6 +244,7 @@ def test_compiled_kalman_algebra_is_the_textbook_filter():
         np.testing.assert_allclose(out[0], xp, rtol=1e-12)
         np.testing.assert_allclose(out[2], xp + k @ (z - h @ xp), rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(out[3], 0.5 * (p_post + p_post.T), rtol=1e-9, atol=1e-12)
+        np.testing.assert_array_equal(out[3], out[3].T)
         nu, s = z[:2] - xp[:2], pp[:2, :2] + np.eye(2) * r_var[0]
         assert kf_mahalanobis(xp, pp, z[0], z[1], r_var[0]) == pytest.approx(nu @ np.linalg.solve(s, nu), rel=1e-10)
         singular = p.copy()
