@@ -167,6 +167,7 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
     bx = np.empty(n_sectors)
     by = np.empty(n_sectors)
     res = np.empty(n_sectors)
+    dev = np.empty(n_sectors)  # the kept points' |res|, sorted
     keep = np.empty(n_sectors, np.bool_)
     new_keep = np.empty(n_sectors, np.bool_)
     for _ in range(n_iter):
@@ -198,7 +199,6 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
             fcx, fcy, fr = _kasa(bx[:m], by[:m], keep[:m])
             for j in range(m):
                 res[j] = math.hypot(bx[j] - fcx, by[j] - fcy) - fr
-            dev = np.empty(n_keep)
             q = 0
             for j in range(m):
                 if keep[j]:
@@ -298,9 +298,10 @@ _STATE_MEASURED = (0, 1, 6)  # the circle filter's measured states: cx, cy, r
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def _propagated(f, q, x, p):
-    """``(f @ x, f @ p @ f.T + q)`` in plain loops (7 states: BLAS calls cost more than the sums, and
-    compiling them several seconds)."""
+def kf_predict(f, q, x, p):
+    """Kalman prediction of state ``x`` (n,) and covariance ``p`` (n, n) by transition ``f`` and
+    process noise ``q`` (n, n): ``(f @ x, f @ p @ f.T + q)``, in plain loops (7 states: BLAS calls cost
+    more than the sums, and compiling them several seconds)."""
     n = len(x)
     fx = np.zeros(n)
     fp = np.zeros((n, n))
@@ -322,13 +323,6 @@ def _propagated(f, q, x, p):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def kf_predict(f, q, x, p):
-    """Kalman prediction of state ``x`` (n,) and covariance ``p`` (n, n) by transition ``f`` and
-    process noise ``q`` (n, n): ``(f @ x, f @ p @ f.T + q)``."""
-    return _propagated(f, q, x, p)
-
-
-@numba.njit(nogil=True, cache=True, boundscheck=False)
 def kf_update(f, q, x, p, z, r_var):
     """Kalman prediction by ``(f, q)`` and fusion of the measurement ``z = (cx, cy, r)`` of states 0, 1
     and 6 of the circle's filter.
@@ -343,7 +337,7 @@ def kf_update(f, q, x, p, z, r_var):
     -------
     xp, pp : the prior state and covariance; x_post, p_post : the posterior's (``p_post`` symmetrised).
     """
-    xp, pp = _propagated(f, q, x, p)
+    xp, pp = kf_predict(f, q, x, p)
     hp = np.empty((3, 7))  # H pp
     s = np.empty((3, 3))  # H pp H^T + R
     for i in range(3):
