@@ -54,6 +54,12 @@ from detect.kalman import CircleKalman
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""
 
+_NO_MASK = np.zeros(0, bool)
+"""An empty mask for the compiled selections: no hot-pixel map, or every event kept."""
+
+_T_MIN = int(np.iinfo(np.int64).min)
+"""The time before a stream's first event, µs."""
+
 _HOT_EVERY = 4
 """The hot-pixel map is refreshed from one block in this many (hot pixels persist)."""
 
@@ -96,21 +102,8 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
     (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the disk.
 
     Densities are ratios, so more than ``max_events`` events are thinned evenly first."""
-    if len(x) > max_events:
-        step = -(-len(x) // max_events)
-        x, y = x[::step], y[::step]
-    dx = np.subtract(x, fit.cx, dtype=np.float32)
-    dy = np.subtract(y, fit.cy, dtype=np.float32)
-    d2 = dx * dx
-    d2 += dy * dy
-    r = fit.r
-    dens_in = np.count_nonzero(d2 < np.float32(r * r)) / (np.pi * r * r)
-    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    ring = np.flatnonzero((d2 > np.float32(r0 * r0)) & (d2 < np.float32(r1 * r1)))
-    angle = np.arctan2(dy.take(ring), dx.take(ring))
-    sector = ((angle + np.float32(np.pi)) * np.float32(n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
-    dens_ring = np.bincount(sector, minlength=n_sectors) / (np.pi * (r1 * r1 - r0 * r0) / n_sectors)
-    return float(np.mean(dens_ring >= 0.3 * dens_in))
+    step = max(1, -(-len(x) // max_events))
+    return _kernels.surrounded(np.asarray(x), np.asarray(y), fit.cx, fit.cy, fit.r, n_sectors, step)
 
 
 def _in_clutter(fit: CircleFit, cx: float, cy: float, reach: float, x: np.ndarray, y: np.ndarray) -> bool:
@@ -121,17 +114,23 @@ def _in_clutter(fit: CircleFit, cx: float, cy: float, reach: float, x: np.ndarra
                 or _surrounded(x, y, fit) > MAX_SURROUNDED_TRACKING)
 
 
+def _box_pixels(x0: float, x1: float, y0: float, y1: float, width: int, height: int) -> tuple[int, int, int, int]:
+    """The whole pixels ``(lo_x, hi_x, lo_y, hi_y)`` of a ``width`` x ``height`` sensor with
+    ``x0 < x < x1`` and ``y0 < y < y1`` (inclusive bounds; an empty box where a bound is NaN)."""
+    if any(map(math.isnan, (x0, x1, y0, y1))):
+        return 0, -1, 0, -1
+    # bounds first held just outside the sensor (they may be infinite)
+    return (math.floor(max(x0, -1.0)) + 1, math.ceil(min(x1, float(width))) - 1,
+            math.floor(max(y0, -1.0)) + 1, math.ceil(min(y1, float(height))) - 1)
+
+
 def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: float, width: int,
             height: int) -> np.ndarray:
     """Indices of the events (int32 pixel coordinates) with ``x0 < x < x1`` and ``y0 < y < y1``.
 
     The bounds become whole pixels on the sensor, and each axis one unsigned comparison: a float
     comparison would first convert every coordinate to float64."""
-    if any(map(math.isnan, (x0, x1, y0, y1))):
-        return np.zeros(0, np.intp)
-    # bounds first held just outside the sensor (they may be infinite)
-    lo_x, hi_x = math.floor(max(x0, -1.0)) + 1, math.ceil(min(x1, float(width))) - 1
-    lo_y, hi_y = math.floor(max(y0, -1.0)) + 1, math.ceil(min(y1, float(height))) - 1
+    lo_x, hi_x, lo_y, hi_y = _box_pixels(x0, x1, y0, y1, width, height)
     if hi_x < lo_x or hi_y < lo_y:
         return np.zeros(0, np.intp)
     inside = (x - np.int32(lo_x)).view(np.uint32) <= np.uint32(hi_x - lo_x)
@@ -367,6 +366,7 @@ class BallTracker:
         self._search_stride = 1  # slices from the start of one search window to the next
         self._search_next_us = 0  # while balls are tracked, the next search window starts here
         self._hot = HotPixelMap(width, height) if hot_pixels else None
+        self._hot_mask = _NO_MASK if self._hot is None else self._hot.hot  # (updated in place)
         self._probe: list[np.ndarray] | None = [] if flicker_hz == "auto" else None  # (non-empty) batches held meanwhile
         self.flicker_hz = None if flicker_hz in (None, "auto") else float(flicker_hz)
         """Frequency (Hz) of the flicker left out of detection; None: none (or not known yet)."""
@@ -403,7 +403,7 @@ class BallTracker:
         events = np.asarray(events)
         if events.dtype != EVENT_DTYPE:
             raise TypeError(f"events must have EVENT_DTYPE, got {events.dtype}")
-        self._check(events)
+        t, x, y = self._check(events)
         if self._probe is not None:  # flicker_hz="auto": hold the events until the frequency is found
             if len(events):
                 self._probe.append(events)
@@ -412,12 +412,14 @@ class BallTracker:
                     and sum(map(len, held)) < FLICKER_SAMPLE_EVENTS:
                 return self._take_rows()
             events = self._end_probe()
-        if self._flicker is not None and len(events):
-            events = events[~self._flicker.flags(events["t"], events["x"], events["y"])]
-        if len(events):
+            t, x, y, *_ = _kernels.split_checked(events["t"], events["x"], events["y"], _T_MIN)
+        if self._flicker is not None and len(t):
+            keep = np.flatnonzero(~self._flicker.flags(t, x, y))
+            t, x, y = t.take(keep), x.take(keep), y.take(keep)
+        if len(t):
             if self._block0 is None:
-                self._block0 = int(events["t"][0]) // self.block_us * self.block_us
-            self._pending.append((events, np.ascontiguousarray(events["t"])))
+                self._block0 = int(t[0]) // self.block_us * self.block_us
+            self._pending.append((t, x, y))
             self._run(final=False)
         return self._take_rows()
 
@@ -430,25 +432,24 @@ class BallTracker:
             self._flicker = FlickerFilter(self.width, self.height, self.flicker_hz)
         return events
 
-    def _check(self, events: np.ndarray) -> None:
-        """Refuse, with one line naming the first offence, events out of time order (within the
-        batch or behind the previous one) and coordinates outside the sensor size."""
-        if not len(events):
-            return
-        t = events["t"]
-        back = np.flatnonzero(t[1:] < t[:-1])
-        if self._last_t is not None and t[0] < self._last_t:
+    def _check(self, events: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The events' columns ``(t, x, y)`` (int64 µs, int32 px), contiguous; refuses, with one line
+        naming the first offence, events out of time order (within the batch or behind the previous
+        one) and coordinates outside the sensor size."""
+        t, x, y, back, x_max, y_max = _kernels.split_checked(
+            events["t"], events["x"], events["y"], _T_MIN if self._last_t is None else self._last_t)
+        if back == 0:
             raise DetectInputError(f"events out of time order: this batch starts at t={int(t[0])} µs, before the "
                                    f"previous batch's last event at {self._last_t} µs")
-        if len(back):
-            i = int(back[0]) + 1
-            raise DetectInputError(f"events out of time order: t goes back from {int(t[i - 1])} to {int(t[i])} µs "
-                                   f"at index {i}; sort them by 't' first")
-        x_max, y_max = int(events["x"].max()), int(events["y"].max())
+        if back > 0:
+            raise DetectInputError(f"events out of time order: t goes back from {int(t[back - 1])} to "
+                                   f"{int(t[back])} µs at index {back}; sort them by 't' first")
         if x_max >= self.width or y_max >= self.height:
             raise DetectInputError(f"events reach x={x_max}, y={y_max}, outside the {self.width}x{self.height} "
                                    "sensor size given")
-        self._last_t = int(t[-1])
+        if len(t):
+            self._last_t = int(t[-1])
+        return t, x, y
 
     @property
     def last_t_us(self) -> int | None:
@@ -512,33 +513,32 @@ class BallTracker:
     def _run(self, final: bool) -> None:
         """Process every complete block of the pending events (every block if ``final``)."""
         while self._pending:
-            t0 = int(self._pending[0][1][0])
+            t0 = int(self._pending[0][0][0])
             b0 = self._block0 + (t0 - self._block0) // self.block_us * self.block_us
             b1 = b0 + self.block_us
             pieces, rest = [], []
-            for k, (ev, t) in enumerate(self._pending):
+            for k, (t, x, y) in enumerate(self._pending):
                 j = int(np.searchsorted(t, b1, side="left"))
-                pieces.append((ev[:j], t[:j]))
-                if j < len(ev):
-                    rest = [(ev[j:], t[j:]), *self._pending[k + 1:]]
+                pieces.append((t[:j], x[:j], y[:j]))
+                if j < len(t):
+                    rest = [(t[j:], x[j:], y[j:]), *self._pending[k + 1:]]
                     break
             else:
                 if not final:
                     return  # the block goes on in events still to come
             self._pending = rest
             if len(pieces) == 1:  # a block within one batch: views, no copy
-                ev, t = pieces[0]
+                t, x, y = pieces[0]
             else:
-                ev, t = concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
-            self._process_block(ev, t, b0, end_us=int(t[-1]) + 1 if final and not rest and len(t) else None)
+                t, x, y = (np.concatenate([p[i] for p in pieces]) for i in range(3))
+            self._process_block(t, x, y, b0, end_us=int(t[-1]) + 1 if final and not rest and len(t) else None)
             self._t_processed = b1
 
-    def _process_block(self, ev: np.ndarray, t: np.ndarray, b0: int, end_us: int | None = None) -> None:
-        """The slices of block ``[b0, b0 + block_us)``; with ``end_us`` (the stream's end: its last event
-        + 1 µs), its last slice ends there and the tracking windows being joined end with it (no
-        window's row is stamped after the stream's last event; frames after it may still add rows)."""
-        x = ev["x"].astype(np.int32)
-        y = ev["y"].astype(np.int32)
+    def _process_block(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, b0: int, end_us: int | None = None) -> None:
+        """The slices of block ``[b0, b0 + block_us)`` (events ``t`` int64 µs, ``x, y`` int32 px); with
+        ``end_us`` (the stream's end: its last event + 1 µs), its last slice ends there and the tracking
+        windows being joined end with it (no window's row is stamped after the stream's last event;
+        frames after it may still add rows)."""
         if self._hot is not None and (b0 - self._block0) // self.block_us % _HOT_EVERY == 0:
             self._hot.update(y * self.width + x)
         bounds = np.arange(b0, b0 + self.block_us + 1, self.slice_us)
@@ -566,11 +566,10 @@ class BallTracker:
             keep = np.ones(len(t), bool)
             for fl in self._flights:
                 keep[fl.near] = False
-            keep = np.flatnonzero(keep)
-            t, x, y = t.take(keep), x.take(keep), y.take(keep)
-        if self._hot is not None:
-            keep = np.flatnonzero(self._hot.keep(y * self.width + x))
-            t, x, y = t.take(keep), x.take(keep), y.take(keep)
+        else:
+            keep = _NO_MASK
+        if self._flights or self._hot is not None:
+            t, x, y = _kernels.kept_events(t, x, y, keep, self._hot_mask, self.width)
         self._search_slice(t, x, y, s0, s1)
 
     def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
@@ -655,26 +654,21 @@ class BallTracker:
         around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
         hx = around + abs(vx) * (s1 - start) * 0.5e-6
         hy = around + abs(vy) * (s1 - start) * 0.5e-6
-        box = _in_box(x, y, cx - hx, cx + hx, cy - hy, cy + hy, self.width, self.height)
-        fl.near, fl.circle = box, (cx, cy, r)
-        if self._hot is not None:
-            box = box[self._hot.keep(y.take(box) * self.width + x.take(box))]
+        fl.near, tb, xb, yb = _kernels.box_select(t, x, y, *_box_pixels(cx - hx, cx + hx, cy - hy, cy + hy, self.width,
+                                                                        self.height), self._hot_mask, self.width)
+        fl.circle = (cx, cy, r)
         # the window lasts as long as the ball needs to fire track_events at its recent rate, so
         # that a ball lost from the prediction is missed after that time, not after max_window_us
         span = self.track_events / max(fl.ball_rate, 1e-9)
         slice_events = (t, x, y)
-        win = fl.window.join(t.take(box), x.take(box), y.take(box), s0, s1,
-                             0 if last else min(int(span), self.max_window_us))
+        win = fl.window.join(tb, xb, yb, s0, s1, 0 if last else min(int(span), self.max_window_us))
         if win is None:
             return
         t, x, y, start = win
-        dt_s = (t - m) * 1e-6
-        dx = x - vx * dt_s - cx
-        dy = y - vy * dt_s - cy
-        sel = dx * dx + dy * dy < reach * reach
+        xc, yc, ts, xs, ys = _kernels.moved_near(t, x, y, m, vx, vy, cx, cy, reach)
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
-        fit = self._fit(t[sel], x[sel], y[sel], m, (cx, cy), (vx, vy), r_rng) if sel.sum() >= 12 else None
-        if fit is not None and _in_clutter(fit, cx, cy, reach, dx + cx, dy + cy):
+        fit = self._fit(ts, xs, ys, m, (cx, cy), (vx, vy), r_rng) if len(ts) >= 12 else None
+        if fit is not None and _in_clutter(fit, cx, cy, reach, xc, yc):
             fit = None
         if fit is None or fit.score < self.min_score:
             if not self._track_ends(fl, (t, x, y, start), slice_events, s1, around, r_rng):
@@ -682,8 +676,8 @@ class BallTracker:
                 if fl.misses >= self.max_misses:
                     self._end_flight(fl)
             return
-        if self._judge(fl, m, fit, (t[sel], x[sel], y[sel])):
-            fl.ball_rate = 0.5 * fl.ball_rate + 0.5 * int(sel.sum()) / max(s1 - start, 1)
+        if self._judge(fl, m, fit, (ts, xs, ys)):
+            fl.ball_rate = 0.5 * fl.ball_rate + 0.5 * len(ts) / max(s1 - start, 1)
 
     def _judge(self, fl: _Flight, m: int, fit: CircleFit, events) -> bool:
         """Update flight ``fl`` with ``fit`` (a window centred at ``m`` µs, its ``events`` ``(t, x, y)``)

@@ -165,6 +165,56 @@ def test_box_selection_matches_float_comparisons():
         np.testing.assert_array_equal(_in_box(x, y, x0, x1, y0, y1, 640, 480), expect)
 
 
+def test_compiled_selections_match_numpy():
+    from capture.events import EVENT_DTYPE
+    from detect._kernels import box_select, kept_events, moved_near, split_checked
+    from detect.tracker import _box_pixels
+
+    rng = np.random.default_rng(5)
+    n, w, h = 40_000, 640, 480
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["t"] = np.sort(rng.integers(0, 10_000, n))
+    ev["x"], ev["y"] = rng.integers(0, w, n), rng.integers(0, h, n)
+    t, x, y, back, x_max, y_max = split_checked(ev["t"], ev["x"], ev["y"], -1)
+    assert (t.dtype, x.dtype, y.dtype, t.flags.c_contiguous) == (np.int64, np.int32, np.int32, True)
+    np.testing.assert_array_equal(t, ev["t"])
+    np.testing.assert_array_equal(x, ev["x"])
+    assert (back, x_max, y_max) == (-1, ev["x"].max(), ev["y"].max())
+    assert split_checked(ev["t"], ev["x"], ev["y"], int(ev["t"][0]) + 1)[3] == 0  # behind the batch before
+    late = ev.copy()
+    late["t"][[777, 900]] = -5
+    assert split_checked(late["t"], late["x"], late["y"], -1)[3] == 777  # the first one going back
+    assert split_checked(ev["t"][:0], ev["x"][:0], ev["y"][:0], 0)[3:] == (-1, -1, -1)
+
+    hot = rng.random(w * h) < 0.2
+    for bounds in [(100.3, 180.0, 50.0, 90.7), (-30.5, 20.2, 470.1, 900.0), (-1e9, 1e9, -1e9, 1e9),
+                   (np.nan, 10.0, 0.0, 10.0), (700.0, 800.0, 10.0, 20.0)]:
+        lo_x, hi_x, lo_y, hi_y = _box_pixels(*bounds, w, h)
+        x0, x1, y0, y1 = bounds
+        box = np.flatnonzero((x > x0) & (x < x1) & (y > y0) & (y < y1))
+        for mask in (hot, np.zeros(0, bool)):
+            near, tk, xk, yk = box_select(t, x, y, lo_x, hi_x, lo_y, hi_y, mask, w)
+            np.testing.assert_array_equal(near, box)
+            kept = box[~mask[y[box] * w + x[box]]] if len(mask) else box
+            for a, b in zip((tk, xk, yk), (t, x, y)):
+                np.testing.assert_array_equal(a, b[kept])
+    keep = rng.random(n) < 0.5
+    for k, mask, expect in [(keep, hot, keep & ~hot[y * w + x]), (np.zeros(0, bool), hot, ~hot[y * w + x]),
+                            (keep, np.zeros(0, bool), keep)]:
+        for a, b in zip(kept_events(t, x, y, k, mask, w), (t, x, y)):
+            np.testing.assert_array_equal(a, b[expect])
+
+    m, vx, vy, cx, cy, reach = 5_000, 3000.0, -1500.0, 320.0, 240.0, 90.0
+    xc, yc, tn, xn, yn = moved_near(t, x, y, m, vx, vy, cx, cy, reach)
+    dt_s = (t - m) * 1e-6
+    np.testing.assert_allclose(xc, x - vx * dt_s, atol=1e-9)
+    np.testing.assert_allclose(yc, y - vy * dt_s, atol=1e-9)
+    near = np.hypot(xc - cx, yc - cy) < reach
+    assert 0 < near.sum() < n
+    for a, b in zip((tn, xn, yn), (t, x, y)):
+        np.testing.assert_array_equal(a, b[near])
+
+
 def test_surrounded_counts_the_ring_sectors_that_hold_events():
     rng = np.random.default_rng(4)
     fit = CircleFit(cx=100.0, cy=100.0, r=20.0, score=1.0, sigma_px=0.1, n_events=0)
