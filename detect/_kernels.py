@@ -555,6 +555,57 @@ def surrounded(x, y, cx, cy, r, n_sectors, step):
     return dense / n_sectors
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def cell_counts(x, y, cell_px, gw, gh):
+    """Events per cell of ``cell_px`` x ``cell_px`` pixels: a (gh, gw) float32 map from pixel
+    coordinates ``x, y`` ((N,) non-negative integers within it)."""
+    dens = np.zeros((gh, gw), np.float32)
+    if cell_px & (cell_px - 1) == 0:  # a power of two: shifts
+        shift = 0
+        while (1 << shift) < cell_px:
+            shift += 1
+        for i in range(len(x)):
+            dens[y[i] >> shift, x[i] >> shift] += 1.0
+    else:
+        for i in range(len(x)):
+            dens[y[i] // cell_px, x[i] // cell_px] += 1.0
+    return dens
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def cluster_stats(labels, dens, n):
+    """Each of ``n`` labels' events and bounding box on a (gh, gw) map of cluster ``labels`` (0: none)
+    and event counts ``dens``.
+
+    Returns
+    -------
+    sums : (n,) float64 events per label (label 0's left at 0).
+    stats : (n, 4) int64 ``(x0, y0, w, h)`` bounding box in cells (zeros for label 0).
+    """
+    gh, gw = labels.shape
+    sums = np.zeros(n)
+    lo_x = np.full(n, gw)
+    lo_y = np.full(n, gh)
+    hi_x = np.full(n, -1)
+    hi_y = np.full(n, -1)
+    for cy in range(gh):
+        for cx in range(gw):
+            lab = labels[cy, cx]
+            if lab == 0:
+                continue
+            sums[lab] += dens[cy, cx]
+            lo_x[lab] = min(lo_x[lab], cx)
+            hi_x[lab] = max(hi_x[lab], cx)
+            lo_y[lab] = min(lo_y[lab], cy)
+            hi_y[lab] = max(hi_y[lab], cy)
+    stats = np.zeros((n, 4), np.int64)
+    for lab in range(1, n):
+        if hi_x[lab] >= 0:
+            stats[lab, 0], stats[lab, 1] = lo_x[lab], lo_y[lab]
+            stats[lab, 2], stats[lab, 3] = hi_x[lab] - lo_x[lab] + 1, hi_y[lab] - lo_y[lab] + 1
+    return sums, stats
+
+
 @functools.cache
 def load() -> None:
     """Load the compiled loops now (from the cache: about 0.5 s once per process, holding the GIL; after
@@ -575,3 +626,5 @@ def load() -> None:
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)
     surrounded(x, y, 0.0, 0.0, 1.0, 12, 1)
     surrounded(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 12, 1)
+    dens = cell_counts(x, y, 4, 1, 1)
+    cluster_stats(np.zeros((1, 1), np.int32), dens, 1)

@@ -1,7 +1,7 @@
 """Ball detection in short slices of events (1-2 ms).
 
-Two steps over the events of a slice (the density map in NumPy and OpenCV, the rim fit compiled in
-:mod:`detect._kernels`):
+Two steps over the events of a slice (the density map's counts and clusters' statistics, and the rim
+fit, compiled in :mod:`detect._kernels`; the map's blur and labelling in OpenCV):
 
 * :func:`find_candidates` builds a coarse event-density map (cells of
   ``cell_px`` pixels), thresholds it against the slice's noise level and keeps
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from detect._kernels import rim_fit
+from detect._kernels import cell_counts, cluster_stats, rim_fit
 
 
 @dataclass(frozen=True)
@@ -210,37 +210,17 @@ def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, ce
     if len(x) < min_events:
         return []
     gw, gh = -(-width // cell_px), -(-height // cell_px)
-    if cell_px & (cell_px - 1) == 0 and x.dtype == y.dtype == np.int32:  # a power of two: shifts on int32
-        shift = int(cell_px).bit_length() - 1
-        cell = (y >> shift) * gw + (x >> shift)
-    else:
-        cell = (y.astype(np.int64) // cell_px) * gw + x.astype(np.int64) // cell_px
-    dens = np.bincount(cell, minlength=gw * gh).astype(np.float32).reshape(gh, gw)
+    dens = cell_counts(np.asarray(x), np.asarray(y), cell_px, gw, gh)
     sm = cv2.blur(dens, (3, 3))
     lam = len(x) / (gw * gh)
     thr = lam + 4.0 * np.sqrt(lam) + 1.0
     mask = sm > thr
-    dense = np.flatnonzero(mask)
-    if len(dense) == 0:  # nothing dense
+    if not mask.any():  # nothing dense
         return []
     n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     if n <= 1:
         return []
-    # each cluster's events and bounding box from its few dense cells (the labelling's own statistics
-    # and a weighted count over the whole map cost 10x more)
-    labs = labels.reshape(-1)[dense]
-    order = np.argsort(labs, kind="stable")
-    labs, dense = labs[order], dense[order]
-    first = np.flatnonzero(np.r_[True, labs[1:] != labs[:-1]])
-    ids = labs[first]
-    cy, cx = np.divmod(dense, gw)
-    sums = np.zeros(n)
-    sums[ids] = np.add.reduceat(dens.reshape(-1)[dense].astype(np.float64), first)
-    stats = np.zeros((n, 4), np.int64)
-    stats[ids, 0] = np.minimum.reduceat(cx, first)
-    stats[ids, 1] = np.minimum.reduceat(cy, first)
-    stats[ids, 2] = np.maximum.reduceat(cx, first) - stats[ids, 0] + 1
-    stats[ids, 3] = np.maximum.reduceat(cy, first) - stats[ids, 1] + 1
+    sums, stats = cluster_stats(labels, dens, n)
     out = []
     for lab in np.argsort(-sums[1:]) + 1:
         if sums[lab] < min_events:

@@ -154,6 +154,29 @@ def test_find_candidates_sizes_and_ranks_clusters():
     assert find_candidates(x, y, width=W, height=H, r_range=(30, 40)) == []  # too small for that range
 
 
+def test_density_map_counts_and_cluster_statistics_match_numpy():
+    from detect._kernels import cell_counts, cluster_stats
+
+    rng = np.random.default_rng(6)
+    x, y = rng.integers(0, 641, 30_000).astype(np.int32), rng.integers(0, 481, 30_000).astype(np.int32)
+    for cell in (4, 6):  # shifts and divisions
+        gw, gh = -(-641 // cell), -(-481 // cell)
+        expect = np.bincount((y // cell) * gw + x // cell, minlength=gw * gh).reshape(gh, gw)
+        np.testing.assert_array_equal(cell_counts(x, y, cell, gw, gh), expect)
+    labels = rng.integers(0, 5, (30, 40)).astype(np.int32)
+    labels[:, :3] = 0
+    labels[labels == 3] = 0  # a label without cells
+    dens = rng.integers(0, 9, (30, 40)).astype(np.float32)
+    sums, stats = cluster_stats(labels, dens, 5)
+    for lab in range(5):
+        cy, cx = np.nonzero(labels == lab)
+        if lab in (0, 3):
+            assert sums[lab] == 0 and not stats[lab].any()
+            continue
+        assert sums[lab] == dens[labels == lab].sum()
+        np.testing.assert_array_equal(stats[lab], [cx.min(), cy.min(), np.ptp(cx) + 1, np.ptp(cy) + 1])
+
+
 def test_box_selection_matches_float_comparisons():
     rng = np.random.default_rng(3)
     x = rng.integers(0, 640, 50_000).astype(np.int32)
