@@ -476,7 +476,7 @@ def box_select(t, x, y, lo_x, hi_x, lo_y, hi_y, hot, width):
             continue
         tk[j], xk[j], yk[j] = t[i], x[i], y[i]
         j += 1
-    return near[:k], tk[:j], xk[:j], yk[:j]
+    return near[:k].copy(), tk[:j].copy(), xk[:j].copy(), yk[:j].copy()  # (windows keep them)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -493,7 +493,7 @@ def kept_events(t, x, y, keep, hot, width):
         if (all_kept or keep[i]) and not (has_hot and hot[y[i] * width + x[i]]):
             tk[j], xk[j], yk[j] = t[i], x[i], y[i]
             j += 1
-    return tk[:j], xk[:j], yk[:j]
+    return tk[:j].copy(), xk[:j].copy(), yk[:j].copy()  # (windows keep them)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -523,7 +523,7 @@ def moved_near(t, x, y, m, vx, vy, cx, cy, reach):
         if dx * dx + dy * dy < reach2:
             tn[k], xn[k], yn[k] = t[i], x[i], y[i]
             k += 1
-    return xc, yc, tn[:k], xn[:k], yn[:k]
+    return xc, yc, tn[:k].copy(), xn[:k].copy(), yn[:k].copy()  # (outlier fits keep them)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -557,18 +557,20 @@ def surrounded(x, y, cx, cy, r, n_sectors, step):
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def cell_counts(x, y, cell_px, gw, gh):
-    """Events per cell of ``cell_px`` x ``cell_px`` pixels: a (gh, gw) float32 map from pixel
-    coordinates ``x, y`` ((N,) non-negative integers within it)."""
+    """Events per cell of ``cell_px`` x ``cell_px`` pixels: a (gh, gw) float32 map from integer pixel
+    coordinates ``x, y`` ((N,)); events outside the map are not counted."""
     dens = np.zeros((gh, gw), np.float32)
-    if cell_px & (cell_px - 1) == 0:  # a power of two: shifts
-        shift = 0
-        while (1 << shift) < cell_px:
-            shift += 1
-        for i in range(len(x)):
-            dens[y[i] >> shift, x[i] >> shift] += 1.0
-    else:
-        for i in range(len(x)):
-            dens[y[i] // cell_px, x[i] // cell_px] += 1.0
+    shift = 0
+    while (1 << shift) < cell_px:
+        shift += 1
+    pow2 = (1 << shift) == cell_px  # shifts, else divisions
+    for i in range(len(x)):
+        if x[i] < 0 or y[i] < 0:
+            continue
+        cx = x[i] >> shift if pow2 else x[i] // cell_px
+        cy = y[i] >> shift if pow2 else y[i] // cell_px
+        if cx < gw and cy < gh:
+            dens[cy, cx] += 1.0
     return dens
 
 
@@ -619,8 +621,10 @@ def load() -> None:
     kf_update(eye, eye, np.zeros(7), eye, np.zeros(3), np.ones(3))
     kf_mahalanobis(*kf_predict(eye, eye, np.zeros(7), eye), 0.0, 0.0, 1.0)
     rts_gain(eye, eye, eye)
-    events = np.zeros(1, EVENT_DTYPE)  # its field views: strided, unaligned
+    events = np.zeros(2, EVENT_DTYPE)  # its field views: strided, unaligned (a batch's)
     t, x, y, *_ = split_checked(events["t"], events["x"], events["y"], 0)
+    events.setflags(write=False)  # (a batch read from a file or store may be read-only)
+    split_checked(events["t"], events["x"], events["y"], 0)
     box_select(t, x, y, 0, 0, 0, 0, np.zeros(1, np.bool_), 1)
     kept_events(t, x, y, np.zeros(1, np.bool_), np.zeros(1, np.bool_), 1)
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)

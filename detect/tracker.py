@@ -374,7 +374,7 @@ class BallTracker:
         self._frames = FrameDetector(self.r_range)
         self._frame_queue: list = []
         self._frame_seq = itertools.count()
-        self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # (events, their times contiguous)
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (t, x, y) of events to process
         self._block0: int | None = None
         self._last_t: int | None = None
         self._flights: list[_Flight] = []  # the balls being tracked, oldest first

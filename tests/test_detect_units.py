@@ -238,6 +238,53 @@ def test_compiled_selections_match_numpy():
         np.testing.assert_array_equal(a, b[near])
 
 
+def _surrounded_numpy(x, y, cx, cy, r, n_sectors, step):
+    """The ring count in NumPy, as the tracker computed it before it was compiled."""
+    x, y = x[::step], y[::step]
+    dx, dy = np.subtract(x, cx, dtype=np.float32), np.subtract(y, cy, dtype=np.float32)
+    d2 = dx * dx
+    d2 += dy * dy
+    dens_in = np.count_nonzero(d2 < np.float32(r * r)) / (np.pi * r * r)
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    ring = np.flatnonzero((d2 > np.float32(r0 * r0)) & (d2 < np.float32(r1 * r1)))
+    angle = np.arctan2(dy.take(ring), dx.take(ring))
+    sector = ((angle + np.float32(np.pi)) * np.float32(n_sectors / (2 * np.pi))).astype(np.int64) % n_sectors
+    dens_ring = np.bincount(sector, minlength=n_sectors) / (np.pi * (r1 * r1 - r0 * r0) / n_sectors)
+    return float(np.mean(dens_ring >= 0.3 * dens_in))
+
+
+def test_compiled_ring_count_matches_numpy():
+    from detect._kernels import surrounded
+
+    rng = np.random.default_rng(7)
+    for case in range(40):
+        cx, cy, r = 60.0 + rng.uniform(0, 1), 50.0 + rng.uniform(0, 1), rng.uniform(5, 25)
+        n = int(rng.integers(50, 3000))
+        x, y = rng.uniform(cx - 3 * r, cx + 3 * r, n), rng.uniform(cy - 3 * r, cy + 3 * r, n)
+        # points exactly on the disk's and the ring's edges, and straight left of the centre
+        edge = np.array([r, 1.15 * r + 1.0, 1.5 * r + 2.0])
+        x[:3], y[:3] = cx + edge, cy
+        x[3:6], y[3:6] = cx - edge, cy
+        for xs, ys in ((x, y), (np.rint(x).astype(np.int32), np.rint(y).astype(np.int32))):
+            for step in (1, 3):
+                got = surrounded(xs, ys, cx, cy, r, 12, step)
+                assert got == _surrounded_numpy(xs, ys, cx, cy, r, 12, step), (case, step, xs.dtype)
+
+
+def test_loaded_kernels_serve_a_tracker_without_compiling():
+    import sim
+    from detect import _kernels, track_ball
+
+    _kernels.load()
+    kernels = [v for v in vars(_kernels).values() if hasattr(v, "signatures")]
+    before = {k.py_func.__name__: len(k.signatures) for k in kernels}
+    rec = sim.flight(width=160, height=120, radius_px=10, duration_s=0.05, seed=3, hot_pixels=5)
+    ev = rec.events.copy()
+    ev.setflags(write=False)
+    assert len(track_ball(ev, width=160, height=120).t_us) > 0
+    assert {k.py_func.__name__: len(k.signatures) for k in kernels} == before
+
+
 def test_surrounded_counts_the_ring_sectors_that_hold_events():
     rng = np.random.default_rng(4)
     fit = CircleFit(cx=100.0, cy=100.0, r=20.0, score=1.0, sigma_px=0.1, n_events=0)
