@@ -444,6 +444,13 @@ def split_checked(t_in, x_in, y_in, t_before):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
+def _first(a, k):
+    """``a[:k]``, copied where that is under half of ``a`` (a window or a chain may keep it: at most
+    twice its size is held)."""
+    return a[:k].copy() if 2 * k < len(a) else a[:k]
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
 def box_select(t, x, y, lo_x, hi_x, lo_y, hi_y, hot, width):
     """The events in a box of whole pixels, and those of them not on a hot pixel, in one pass.
 
@@ -460,23 +467,21 @@ def box_select(t, x, y, lo_x, hi_x, lo_y, hi_y, hot, width):
     """
     n = len(x)
     near = np.empty(n, np.intp)
-    k = 0
+    tk = np.empty(n, np.int64)
+    xk = np.empty(n, np.int32)
+    yk = np.empty(n, np.int32)
+    has_hot = len(hot) > 0
+    k = j = 0
     for i in range(n):
-        if lo_x <= x[i] <= hi_x and lo_y <= y[i] <= hi_y:
+        xi, yi = x[i], y[i]
+        if lo_x <= xi <= hi_x and lo_y <= yi <= hi_y:
             near[k] = i
             k += 1
-    tk = np.empty(k, np.int64)
-    xk = np.empty(k, np.int32)
-    yk = np.empty(k, np.int32)
-    has_hot = len(hot) > 0
-    j = 0
-    for q in range(k):
-        i = near[q]
-        if has_hot and hot[y[i] * width + x[i]]:
-            continue
-        tk[j], xk[j], yk[j] = t[i], x[i], y[i]
-        j += 1
-    return near[:k].copy(), tk[:j].copy(), xk[:j].copy(), yk[:j].copy()  # (windows keep them)
+            if has_hot and hot[yi * width + xi]:
+                continue
+            tk[j], xk[j], yk[j] = t[i], xi, yi
+            j += 1
+    return _first(near, k), _first(tk, j), _first(xk, j), _first(yk, j)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -493,7 +498,7 @@ def kept_events(t, x, y, keep, hot, width):
         if (all_kept or keep[i]) and not (has_hot and hot[y[i] * width + x[i]]):
             tk[j], xk[j], yk[j] = t[i], x[i], y[i]
             j += 1
-    return tk[:j].copy(), xk[:j].copy(), yk[:j].copy()  # (windows keep them)
+    return _first(tk, j), _first(xk, j), _first(yk, j)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -523,7 +528,7 @@ def moved_near(t, x, y, m, vx, vy, cx, cy, reach):
         if dx * dx + dy * dy < reach2:
             tn[k], xn[k], yn[k] = t[i], x[i], y[i]
             k += 1
-    return xc, yc, tn[:k].copy(), xn[:k].copy(), yn[:k].copy()  # (outlier fits keep them)
+    return xc, yc, _first(tn, k), _first(xn, k), _first(yn, k)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
