@@ -96,10 +96,11 @@ class CircleKalman:
         """State ``x`` (shape (7,)) at ``t_from_us`` moved by the motion model to ``t_to_us`` (either way)."""
         return self._transition((t_to_us - t_from_us) * 1e-6)[0] @ x
 
-    def innovation(self, t_us: int, z, sigma_px: float) -> float:
-        """Squared Mahalanobis distance of centre measurement ``z`` against the prediction."""
+    def innovation(self, t_us: int, z, sigma_px: float) -> tuple[float, np.ndarray]:
+        """Squared Mahalanobis distance of centre measurement ``z`` (px, centre sigma ``sigma_px``)
+        against the prediction to ``t_us``, and that predicted state (shape (7,))."""
         x, p = self.predict(t_us)
-        return float(kf_mahalanobis(x, p, float(z[0]), float(z[1]), float(sigma_px) ** 2))
+        return float(kf_mahalanobis(x, p, float(z[0]), float(z[1]), float(sigma_px) ** 2)), x
 
     def update(self, t_us: int, z, sigma_px: float, sigma_r_px: float) -> None:
         """Predict to ``t_us`` and fuse measurement ``z = (cx, cy, r)``."""

@@ -715,8 +715,8 @@ class BallTracker:
         """Whether a circle centred at ``(cx, cy)`` px (at ``t_us``, centre sigma ``sigma_px``) lies in
         the gate around the prediction of ``kf`` (Mahalanobis, or within a tenth of the radius) and,
         given its radius ``r``, has about the predicted size."""
-        px, py, pr = kf.predict(t_us)[0][[0, 1, 6]]
-        d2 = kf.innovation(t_us, (cx, cy), sigma_px)
+        d2, pred = kf.innovation(t_us, (cx, cy), sigma_px)
+        px, py, pr = pred[0], pred[1], pred[6]
         return bool((d2 <= self.gate_chi2 or np.hypot(cx - px, cy - py) <= 0.1 * pr + 1.0)
                     and (r is None or abs(r - pr) <= 0.25 * pr + 2.0))
 
