@@ -613,6 +613,34 @@ def cluster_stats(labels, dens, n):
     return sums, stats
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def near_track(t, x, y, t_row, ends, cx, cy, vx, vy, reach):
+    """Indices of the events near a track: each event (time-sorted ``t`` µs, pixel ``x, y``, any
+    strides) against the last row ``i`` at or before it (rows sorted by ``t_row`` µs), kept when
+    ``t < ends[i]`` and it lies within ``reach[i]`` px of that row's centre ``(cx, cy)[i]`` moved
+    along its velocity ``(vx, vy)[i]`` px/s. Events before the first row are not. (M,) arrays for
+    the rows; returns (K,) int64, increasing."""
+    n, m = len(t), len(t_row)
+    out = np.empty(n, np.int64)
+    k = 0
+    i = -1
+    for j in range(np.searchsorted(t, t_row[0]) if m else n, n):
+        tj = t[j]
+        while i + 1 < m and t_row[i + 1] <= tj:
+            i += 1
+        if tj >= ends[i]:
+            if i == m - 1:
+                break  # after the track's end
+            continue
+        dt_s = (tj - t_row[i]) * 1e-6
+        dx = x[j] - (cx[i] + vx[i] * dt_s)
+        dy = y[j] - (cy[i] + vy[i] * dt_s)
+        if dx * dx + dy * dy <= reach[i] * reach[i]:
+            out[k] = j
+            k += 1
+    return out[:k].copy()
+
+
 @functools.cache
 def load() -> None:
     """Load the compiled loops now (from the cache: about 0.5 s once per process, holding the GIL; after
@@ -628,8 +656,12 @@ def load() -> None:
     rts_gain(eye, eye, eye)
     events = np.zeros(2, EVENT_DTYPE)  # its field views: strided, unaligned (a batch's)
     t, x, y, *_ = split_checked(events["t"], events["x"], events["y"], 0)
-    events.setflags(write=False)  # (a batch read from a file or store may be read-only)
-    split_checked(events["t"], events["x"], events["y"], 0)
+    rows = np.zeros(1)
+    for writable in (True, False):  # (a batch read from a file or store may be read-only)
+        events.setflags(write=writable)
+        split_checked(events["t"], events["x"], events["y"], 0)
+        near_track(events["t"], events["x"], events["y"], np.zeros(1, np.int64), np.ones(1, np.int64), rows,
+                   rows, rows, rows, rows)
     box_select(t, x, y, 0, 0, 0, 0, np.zeros(1, np.bool_), 1)
     kept_events(t, x, y, np.zeros(1, np.bool_), np.zeros(1, np.bool_), 1)
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)

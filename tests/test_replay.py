@@ -121,3 +121,32 @@ def test_windows_starting_in_a_gap_between_track_rows_keep_their_events(tmp_path
         assert mine == full
         n += len(full)
     assert n >= 10
+
+
+def test_events_near_the_ball_are_those_of_the_rows_circles():
+    from capture.events import EVENT_DTYPE, Track
+
+    rng = np.random.default_rng(8)
+    n, m = 60_000, 40
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["t"] = np.sort(rng.integers(0, 100_000, n))
+    ev["x"], ev["y"] = rng.integers(0, 640, n), rng.integers(0, 480, n)
+    t_row = np.sort(rng.choice(np.arange(10_000, 80_000), m, replace=False))
+    t_row[5] = t_row[4]  # two rows at one time: the later one counts
+    rows = Track(t_us=t_row, cx=rng.uniform(100, 500, m), cy=rng.uniform(100, 400, m), r=rng.uniform(10, 60, m),
+                 vx=rng.uniform(-3000, 3000, m), vy=rng.uniform(-3000, 3000, m), score=np.ones(m),
+                 flight=np.zeros(m, np.int64))
+    longest_us = 4000
+    got = replay_mod._near_ball(ev["t"], ev["x"], ev["y"], rows, longest_us)
+    # each event against the last row at or before it, in NumPy
+    t = ev["t"]
+    i = np.searchsorted(t_row, t, side="right") - 1
+    ends = np.append(t_row[1:], t_row[-1] + longest_us)
+    ic = np.clip(i, 0, None)
+    dt_s = (t - t_row[ic]) * 1e-6
+    dx = ev["x"] - (rows.cx[ic] + rows.vx[ic] * dt_s)
+    dy = ev["y"] - (rows.cy[ic] + rows.vy[ic] * dt_s)
+    reach = replay_mod.REACH_MARGIN[0] * rows.r[ic] + replay_mod.REACH_MARGIN[1]
+    expect = np.flatnonzero((i >= 0) & (t < ends[ic]) & (dx * dx + dy * dy <= reach * reach))
+    assert len(expect) > 500
+    np.testing.assert_array_equal(got, expect)

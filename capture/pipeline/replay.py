@@ -37,6 +37,7 @@ from capture.pipeline.ball_view import ball_view
 from capture.review import write_rrd
 from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
+from detect._kernels import near_track
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
 
 BATCH_EVENTS = 1 << 20
@@ -123,44 +124,18 @@ kept for spin: a wide superset of the ``r + 1 px`` circle of :func:`detect.track
 which covers the difference between the causal and the smoothed track."""
 
 
-def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, longest_us: int,
-               group_us: int = 16000) -> np.ndarray:
-    """Indices of events ``(t_us, x, y)`` (time-sorted, contiguous) that a spin window of
-    ``rows``' flight may use.
+def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, longest_us: int) -> np.ndarray:
+    """Indices of events ``(t_us, x, y)`` (time-sorted; columns of an event array, any strides) that
+    a spin window of ``rows``' flight may use.
 
     An event counts when it lies within :data:`REACH_MARGIN` of the circle of the flight's
     last row at or before it, moved along that row's velocity, and is at most
-    ``longest_us`` after the flight's last row. Rows are taken in groups spanning about
-    ``group_us``: a box around the ball's path over the group rejects most events with
-    integer comparisons, the few left are tested exactly.
+    ``longest_us`` after the flight's last row (one compiled pass, :func:`detect._kernels.near_track`).
     """
     t_row = rows.t_us
     ends = np.append(t_row[1:], t_row[-1] + longest_us)  # a window may start in a gap between rows
     reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
-    span_s = (ends - t_row) * 1e-6
-    ex, ey = rows.cx + rows.vx * span_s, rows.cy + rows.vy * span_s  # centres at the rows' ends
-    x_lo = np.floor(np.minimum(rows.cx, ex) - reach)
-    x_hi = np.ceil(np.maximum(rows.cx, ex) + reach)
-    y_lo = np.floor(np.minimum(rows.cy, ey) - reach)
-    y_hi = np.ceil(np.maximum(rows.cy, ey) + reach)
-    # group boundaries: a new group every group_us of row time
-    starts = np.flatnonzero(np.diff((t_row - t_row[0]) // group_us, prepend=-1))
-    keep = []
-    for g0, g1 in zip(starts.tolist(), [*starts[1:].tolist(), len(rows)]):
-        lo, hi = np.searchsorted(t_us, [t_row[g0], ends[g1 - 1]], side="left").tolist()
-        if hi <= lo:
-            continue
-        xs, ys = x[lo:hi], y[lo:hi]
-        box = np.flatnonzero((xs >= max(0, int(x_lo[g0:g1].min()))) & (xs <= min(65535, int(x_hi[g0:g1].max())))
-                             & (ys >= max(0, int(y_lo[g0:g1].min()))) & (ys <= min(65535, int(y_hi[g0:g1].max()))))
-        tb = t_us[lo:hi].take(box)
-        i = g0 + np.searchsorted(t_row[g0:g1], tb, side="right") - 1
-        dt_s = (tb - t_row[i]) * 1e-6
-        dx = xs.take(box) - (rows.cx[i] + rows.vx[i] * dt_s)
-        dy = ys.take(box) - (rows.cy[i] + rows.vy[i] * dt_s)
-        ok = (dx * dx + dy * dy <= reach[i] * reach[i]) & (tb < ends[i])
-        keep.append(lo + box[ok])
-    return np.concatenate(keep) if keep else np.zeros(0, np.int64)
+    return near_track(t_us, x, y, t_row, ends, rows.cx, rows.cy, rows.vx, rows.vy, reach)
 
 
 @dataclass
@@ -318,7 +293,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             k = len(ev) if before_us is None else int(np.searchsorted(ev["t"], before_us, side="left"))
             if k == 0:
                 break
-            columns = [np.ascontiguousarray(ev[c][:k]) for c in ("t", "x", "y")]
+            columns = [ev[c][:k] for c in ("t", "x", "y")]
             for fl in flights.values():
                 idx = _near_ball(*columns, fl.causal, longest_us)
                 if len(idx):
