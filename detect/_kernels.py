@@ -617,9 +617,9 @@ def cluster_stats(labels, dens, n):
 def near_track(t, x, y, t_row, ends, cx, cy, vx, vy, reach):
     """Indices of the events near a track: each event (time-sorted ``t`` µs, pixel ``x, y``, any
     strides) against the last row ``i`` at or before it (rows sorted by ``t_row`` µs), kept when
-    ``t < ends[i]`` and it lies within ``reach[i]`` px of that row's centre ``(cx, cy)[i]`` moved
-    along its velocity ``(vx, vy)[i]`` px/s. Events before the first row are not. (M,) arrays for
-    the rows; returns (K,) int64, increasing."""
+    ``t < ends[i]`` (µs) and it lies within ``reach[i]`` px of that row's centre ``(cx, cy)[i]`` px
+    moved along its velocity ``(vx, vy)[i]`` px/s. Events before the first row are not kept. (M,)
+    arrays for the rows; returns (K,) int64, increasing."""
     n, m = len(t), len(t_row)
     out = np.empty(n, np.int64)
     k = 0
@@ -654,14 +654,16 @@ def load() -> None:
     kf_update(eye, eye, np.zeros(7), eye, np.zeros(3), np.ones(3))
     kf_mahalanobis(*kf_predict(eye, eye, np.zeros(7), eye), 0.0, 0.0, 1.0)
     rts_gain(eye, eye, eye)
-    events = np.zeros(2, EVENT_DTYPE)  # its field views: strided, unaligned (a batch's)
+    events = np.zeros(2, EVENT_DTYPE)
     t, x, y, *_ = split_checked(events["t"], events["x"], events["y"], 0)
     rows = np.zeros(1)
     for writable in (True, False):  # (a batch read from a file or store may be read-only)
         events.setflags(write=writable)
-        split_checked(events["t"], events["x"], events["y"], 0)
-        near_track(events["t"], events["x"], events["y"], np.zeros(1, np.int64), np.ones(1, np.int64), rows,
-                   rows, rows, rows, rows)
+        # a batch's field views: strided and unaligned; one event's: contiguous, aligned or not
+        for batch in (events, events[:1], events[1:]):
+            split_checked(batch["t"], batch["x"], batch["y"], 0)
+            near_track(batch["t"], batch["x"], batch["y"], np.zeros(1, np.int64), np.ones(1, np.int64), rows,
+                       rows, rows, rows, rows)
     box_select(t, x, y, 0, 0, 0, 0, np.zeros(1, np.bool_), 1)
     kept_events(t, x, y, np.zeros(1, np.bool_), np.zeros(1, np.bool_), 1)
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture.events import Track, time_slice
+from detect._kernels import near_track
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,34 @@ def window_starts_us(track: Track, step_us: int) -> dict[int, np.ndarray]:
         t = track.t_us[track.flight == flight]
         out[int(flight)] = np.arange(int(t[0]), int(t[-1]) + 1, step_us, dtype=np.int64)
     return out
+
+
+def events_near(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, track: Track, reach_px: np.ndarray,
+                longest_us: int) -> np.ndarray:
+    """Indices of the events ``(t_us, x, y)`` (time-sorted µs, pixel coordinates; columns of an event
+    array, any strides) near a track.
+
+    An event counts when it lies within ``reach_px[i]`` px of the circle centre of ``track``'s last
+    row ``i`` at or before it, moved along that row's velocity, and is less than ``longest_us`` after
+    the last row; events before the first row do not. One compiled pass
+    (:func:`detect._kernels.near_track`).
+
+    Parameters
+    ----------
+    t_us, x, y : ndarray, shape (N,)
+    track : Track
+        The rows of one flight, time-sorted (M >= 1).
+    reach_px : ndarray of float, shape (M,)
+    longest_us : int
+
+    Returns
+    -------
+    ndarray of int64, shape (K,), increasing.
+    """
+    t_row = track.t_us
+    ends = np.append(t_row[1:], t_row[-1] + longest_us)  # an event may fall in a gap between rows
+    return near_track(t_us, x, y, t_row, ends, track.cx, track.cy, track.vx, track.vy,
+                      np.asarray(reach_px, np.float64))
 
 
 def _inside(events: np.ndarray, t0_us: int, cx: float, cy: float, vx: float, vy: float,

@@ -273,7 +273,7 @@ def test_compiled_ring_count_matches_numpy():
 
 def test_loaded_kernels_serve_a_tracker_without_compiling():
     import sim
-    from detect import _kernels, track_ball
+    from detect import BallTracker, _kernels, track_ball
 
     _kernels.load()
     kernels = [v for v in vars(_kernels).values() if hasattr(v, "signatures")]
@@ -282,6 +282,8 @@ def test_loaded_kernels_serve_a_tracker_without_compiling():
     ev = rec.events.copy()
     ev.setflags(write=False)
     assert len(track_ball(ev, width=160, height=120).t_us) > 0
+    for one in (ev[:1], ev[1:2]):  # a one-event batch: contiguous field views, aligned or not
+        BallTracker(160, 120).update(one)
     assert {k.py_func.__name__: len(k.signatures) for k in kernels} == before
 
 

@@ -127,21 +127,32 @@ def test_events_near_the_ball_are_those_of_the_rows_circles():
     from capture.events import EVENT_DTYPE, Track
 
     rng = np.random.default_rng(8)
-    n, m = 60_000, 40
-    ev = np.zeros(n, EVENT_DTYPE)
-    ev["t"] = np.sort(rng.integers(0, 100_000, n))
-    ev["x"], ev["y"] = rng.integers(0, 640, n), rng.integers(0, 480, n)
+    n, m, longest_us = 60_000, 40, 4000
     t_row = np.sort(rng.choice(np.arange(10_000, 80_000), m, replace=False))
     t_row[5] = t_row[4]  # two rows at one time: the later one counts
     rows = Track(t_us=t_row, cx=rng.uniform(100, 500, m), cy=rng.uniform(100, 400, m), r=rng.uniform(10, 60, m),
                  vx=rng.uniform(-3000, 3000, m), vy=rng.uniform(-3000, 3000, m), score=np.ones(m),
                  flight=np.zeros(m, np.int64))
-    longest_us = 4000
+    rows.cx[4], rows.cy[4] = 600.0, 450.0  # far from row 5's centre
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["t"] = rng.integers(0, 100_000, n)
+    ev["x"], ev["y"] = rng.integers(0, 640, n), rng.integers(0, 480, n)
+    # events on a row's centre at the boundaries: before the first row, at rows' times (row 5's
+    # centre at the time rows 4 and 5 share), at the end of the last row's reach and just before it
+    end = t_row[-1] + longest_us
+    last_at = lambda t: (rows.cx[-1] + rows.vx[-1] * (t - t_row[-1]) * 1e-6, rows.cy[-1] + rows.vy[-1] * (t - t_row[-1]) * 1e-6)
+    fixed = [(t_row[0] - 1, rows.cx[0], rows.cy[0]), (t_row[0], rows.cx[0], rows.cy[0]), (t_row[4], rows.cx[5], rows.cy[5]),
+             (t_row[4], rows.cx[4], rows.cy[4]), (t_row[17], rows.cx[17], rows.cy[17]), (end - 1, *last_at(end - 1)),
+             (end, *last_at(end))]
+    for k, (t, cx, cy) in enumerate(fixed):
+        ev[k] = (t, round(cx), round(cy), 1)
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    ev.setflags(write=False)  # (a batch read from the store may be read-only)
     got = replay_mod._near_ball(ev["t"], ev["x"], ev["y"], rows, longest_us)
     # each event against the last row at or before it, in NumPy
     t = ev["t"]
     i = np.searchsorted(t_row, t, side="right") - 1
-    ends = np.append(t_row[1:], t_row[-1] + longest_us)
+    ends = np.append(t_row[1:], end)
     ic = np.clip(i, 0, None)
     dt_s = (t - t_row[ic]) * 1e-6
     dx = ev["x"] - (rows.cx[ic] + rows.vx[ic] * dt_s)
@@ -150,3 +161,6 @@ def test_events_near_the_ball_are_those_of_the_rows_circles():
     expect = np.flatnonzero((i >= 0) & (t < ends[ic]) & (dx * dx + dy * dy <= reach * reach))
     assert len(expect) > 500
     np.testing.assert_array_equal(got, expect)
+    kept = {(int(a), int(b), int(c)) for a, b, c in zip(t[got], ev["x"][got], ev["y"][got])}
+    on = [(int(tf), round(cx), round(cy)) in kept for tf, cx, cy in fixed]
+    assert on == [False, True, True, False, True, True, False]

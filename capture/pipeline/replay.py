@@ -37,8 +37,8 @@ from capture.pipeline.ball_view import ball_view
 from capture.review import write_rrd
 from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
-from detect._kernels import near_track
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
+from detect.track import events_near
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -126,16 +126,10 @@ which covers the difference between the causal and the smoothed track."""
 
 def _near_ball(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, rows: Track, longest_us: int) -> np.ndarray:
     """Indices of events ``(t_us, x, y)`` (time-sorted; columns of an event array, any strides) that
-    a spin window of ``rows``' flight may use.
-
-    An event counts when it lies within :data:`REACH_MARGIN` of the circle of the flight's
-    last row at or before it, moved along that row's velocity, and is at most
-    ``longest_us`` after the flight's last row (one compiled pass, :func:`detect._kernels.near_track`).
-    """
-    t_row = rows.t_us
-    ends = np.append(t_row[1:], t_row[-1] + longest_us)  # a window may start in a gap between rows
-    reach = REACH_MARGIN[0] * rows.r + REACH_MARGIN[1]
-    return near_track(t_us, x, y, t_row, ends, rows.cx, rows.cy, rows.vx, rows.vy, reach)
+    a spin window of ``rows``' flight may use: within :data:`REACH_MARGIN` of the circle of the
+    flight's last row at or before it, moved along that row's velocity, and less than
+    ``longest_us`` after the flight's last row (:func:`detect.track.events_near`)."""
+    return events_near(t_us, x, y, rows, REACH_MARGIN[0] * rows.r + REACH_MARGIN[1], longest_us)
 
 
 @dataclass
