@@ -190,7 +190,8 @@ def find_candidates(x: np.ndarray, y: np.ndarray, *, width: int, height: int, ce
     Parameters
     ----------
     x, y : ndarray of int, shape (N,)
-        Pixel coordinates of one slice's events (hot pixels already removed).
+        Pixel coordinates of one slice's events (hot pixels already removed); events outside the
+        ``width`` x ``height`` sensor are not counted.
     width, height : int
         Sensor size, px.
     cell_px : int
