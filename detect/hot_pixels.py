@@ -57,7 +57,3 @@ class HotPixelMap:
         self._stamp += 1
         self._cand = hot_update(self._stored, self._gain, np.asarray(pixel), self._cand, self._mark, self._stamp,
                                 self.hot, self.width, self.height, self.min_count, self.ratio)
-
-    def keep(self, pixel: np.ndarray) -> np.ndarray:
-        """Mask of events (flat pixel indices) not on a hot pixel."""
-        return ~self.hot[pixel]

@@ -124,20 +124,6 @@ def _box_pixels(x0: float, x1: float, y0: float, y1: float, width: int, height: 
             math.floor(max(y0, -1.0)) + 1, math.ceil(min(y1, float(height))) - 1)
 
 
-def _in_box(x: np.ndarray, y: np.ndarray, x0: float, x1: float, y0: float, y1: float, width: int,
-            height: int) -> np.ndarray:
-    """Indices of the events (int32 pixel coordinates) with ``x0 < x < x1`` and ``y0 < y < y1``.
-
-    The bounds become whole pixels on the sensor, and each axis one unsigned comparison: a float
-    comparison would first convert every coordinate to float64."""
-    lo_x, hi_x, lo_y, hi_y = _box_pixels(x0, x1, y0, y1, width, height)
-    if hi_x < lo_x or hi_y < lo_y:
-        return np.zeros(0, np.intp)
-    inside = (x - np.int32(lo_x)).view(np.uint32) <= np.uint32(hi_x - lo_x)
-    inside &= (y - np.int32(lo_y)).view(np.uint32) <= np.uint32(hi_y - lo_y)
-    return np.flatnonzero(inside)
-
-
 SEARCH_STRIDE_TRACKING = 4
 """While balls are tracked, a search window for another one starts this many slices after the last
 (a player in view costs the search its fits in every window), or the next slice while a detection
@@ -780,12 +766,10 @@ class BallTracker:
         t, x, y = slice_events
         i0, i1 = np.searchsorted(t, (s1 - part_us, s1))
         ts, xs, ys = t[i0:i1], x[i0:i1], y[i0:i1]
-        sel = _in_box(xs, ys, ox - half, ox + half, oy - half, oy + half, self.width, self.height)
-        if self._hot is not None:
-            sel = sel[self._hot.keep(ys.take(sel) * self.width + xs.take(sel))]
-        if len(sel) < _END_PART_MIN_EVENTS:
+        _, ts, xs, ys = _kernels.box_select(ts, xs, ys, *_box_pixels(ox - half, ox + half, oy - half, oy + half,
+                                                                     self.width, self.height), self._hot_mask, self.width)
+        if len(ts) < _END_PART_MIN_EVENTS:
             return took
-        ts, xs, ys = ts.take(sel), xs.take(sel), ys.take(sel)
         fit = self._fit(ts, xs, ys, tm, None, (0.0, 0.0), (max(r_rng[0], 0.8 * r), min(r_rng[1], 1.25 * r)))
         if (fit is None or fit.score < self.min_score or fit.coverage < SPLIT_MIN_COVERAGE
                 or max(abs(fit.cx - ox), abs(fit.cy - oy)) + fit.r > half - 0.5
@@ -830,9 +814,9 @@ class BallTracker:
                 continue
             strikes = 1 if prev is None else prev[1] + 1
             x0, y0, x1, y1 = box
-            sel = _in_box(x, y, x0 - margin - 0.5, x1 + margin - 0.5, y0 - margin - 0.5, y1 + margin - 0.5,
-                          self.width, self.height)
-            ts, xs, ys = t.take(sel), x.take(sel), y.take(sel)
+            _, ts, xs, ys = _kernels.box_select(t, x, y, *_box_pixels(x0 - margin - 0.5, x1 + margin - 0.5, y0 - margin - 0.5,
+                                                                      y1 + margin - 0.5, self.width, self.height),
+                                                _NO_MASK, self.width)
             v0 = estimate_velocity(xs.astype(np.float64), ys.astype(np.float64), ts)
             fit = self._fit(ts, xs, ys, m, None, v0, self.r_range)
             if (fit is None or fit.score < self.min_score) and s1 - start > self.slice_us and any(v0):

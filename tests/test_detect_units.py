@@ -13,7 +13,7 @@ from detect import BallTracker, track_ball
 from detect.event_detector import density_filter, find_candidates, fit_circle
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
-from detect.tracker import _in_box, _surrounded
+from detect.tracker import _box_pixels, _surrounded
 from detect.event_detector import CircleFit
 
 W, H = 320, 240
@@ -178,20 +178,25 @@ def test_density_map_counts_and_cluster_statistics_match_numpy():
 
 
 def test_box_selection_matches_float_comparisons():
+    from detect._kernels import box_select
+
     rng = np.random.default_rng(3)
     x = rng.integers(0, 640, 50_000).astype(np.int32)
     y = rng.integers(0, 480, 50_000).astype(np.int32)
+    t = np.arange(len(x), dtype=np.int64)
     for x0, x1, y0, y1 in [(100.3, 180.0, 50.0, 90.7), (-30.5, 20.2, 470.1, 900.0), (-1e9, 1e9, -1e9, 1e9),
                            (300.0, 300.5, 10.0, 20.0), (700.0, 800.0, 10.0, 20.0), (np.nan, 10.0, 0.0, 10.0),
                            (-np.inf, np.inf, -np.inf, 240.0), (-0.5, 639.5, -1.0, 480.0), (-20.0, -3.0, 0.0, 9.0)]:
         expect = np.flatnonzero((x > x0) & (x < x1) & (y > y0) & (y < y1))
-        np.testing.assert_array_equal(_in_box(x, y, x0, x1, y0, y1, 640, 480), expect)
+        near, tk, xk, yk = box_select(t, x, y, *_box_pixels(x0, x1, y0, y1, 640, 480), np.zeros(0, bool), 640)
+        np.testing.assert_array_equal(near, expect)
+        for a, b in zip((tk, xk, yk), (t, x, y)):
+            np.testing.assert_array_equal(a, b[expect])
 
 
 def test_compiled_selections_match_numpy():
     from capture.events import EVENT_DTYPE
     from detect._kernels import box_select, kept_events, moved_near, split_checked
-    from detect.tracker import _box_pixels
 
     rng = np.random.default_rng(5)
     n, w, h = 40_000, 640, 480
@@ -310,8 +315,8 @@ def test_hot_pixel_map_flags_lonely_busy_pixels_only():
         x = np.r_[np.rint(bx), np.full(20, 200)].astype(int)
         y = np.r_[np.rint(by), np.full(20, 50)].astype(int)
         hm.update(y * W + x)
-    keep = hm.keep(np.array([50, 100, 95]) * W + np.array([200, 100, 105]))
-    assert keep.tolist() == [False, True, True]
+    hot = hm.hot[np.array([50, 100, 95]) * W + np.array([200, 100, 105])]
+    assert hot.tolist() == [True, False, False]
 
 
 @pytest.mark.parametrize("decay, n_updates, hot_most", [(0.9, 300, 4), (0.5, 1100, 9)])
