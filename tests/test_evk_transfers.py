@@ -215,9 +215,13 @@ def test_libusb_queue_against_a_stub_libusb(monkeypatch):
     from collections import deque
     from types import SimpleNamespace
 
-    import usb1.libusb1 as L
-
     from capture.evk import transfers
+    from capture.evk.device import libusb_backend
+
+    backend = libusb_backend()  # the system's libusb-1.0 or the wheel's: a machine with only pip has one
+    assert backend is not None
+    transfers._bindings(backend.lib)  # python-libusb1 on pyusb's libusb-1.0
+    import usb1.libusb1 as L
 
     class StubLibusb:
         libusb_device_handle_p = L.libusb_device_handle_p

@@ -97,10 +97,23 @@ def _scan_interface(dev):
     return None
 
 
+def libusb_backend():
+    """pyusb's libusb-1.0 backend on the system's libusb-1.0, else on the copy that the
+    ``libusb-package`` wheel ships (a machine with only Python and pip has no other), else None."""
+    import usb.backend.libusb1
+
+    backend = usb.backend.libusb1.get_backend()
+    if backend is None:
+        import libusb_package
+
+        backend = libusb_package.get_libusb1_backend()
+    return backend
+
+
 def _candidates(backend):
     try:
         return list(usb.core.find(
-            find_all=True, backend=backend,
+            find_all=True, backend=backend if backend is not None else libusb_backend(),
             custom_match=lambda d: (d.idVendor, d.idProduct) in BOARDS,
         ))
     except usb.core.NoBackendError as exc:

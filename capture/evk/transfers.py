@@ -75,8 +75,12 @@ def open_queue(dev: usb.core.Device, ep: int):
 
 
 def _bindings(lib):
-    """python-libusb1's ctypes bindings, checked to sit on the same libusb-1.0 as ``lib``
-    (pyusb's): transfers submitted through one must complete in the other's event loop."""
+    """python-libusb1's ctypes bindings on ``lib`` (pyusb's libusb-1.0, a ``ctypes.CDLL``), checked to
+    sit on it (python-libusb1 keeps the first library it loaded): transfers submitted through one must
+    complete in the other's event loop."""
+    import usb1
+
+    usb1.loadLibrary(lib)
     import usb1.libusb1 as bindings
 
     def address(library, name):
