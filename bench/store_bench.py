@@ -11,7 +11,8 @@ are alternated so that the machine's background load hits all alike; best of ``-
    several compressor settings (``capture.session.EVENT_COMPRESSION``). The named peer in
    the same run is Zarr's own write path (the chunk encoder switched off: how this project
    stored events before), with the settings of that time (zstd level 1 on every column).
-   Printed: Mev/s written, bytes per event on disk, Mev/s read back (``Session.events()``).
+   Printed: Mev/s written, bytes per event on disk, Mev/s read back (``Session.events()``:
+   through Zarr's read path for the peer, through the store's own chunk decoder for the rest).
 2. Decode + store: ``capture.ingest.convert_raw`` of the same events as an EVT3 file, with
    the store behind the decoder (two threads) and, as the peer, the same with Zarr's write
    path; decoding alone (``capture.raw.read``) for scale.
@@ -47,17 +48,17 @@ SETTINGS = {
 @contextmanager
 def configured(compression: dict, zarr_path: bool):
     """The store with ``compression`` and (``zarr_path``) Zarr's own chunk writing."""
-    saved, fits = dict(S.EVENT_COMPRESSION), S._ChunkEncoder.fits
+    saved, fits = dict(S.EVENT_COMPRESSION), S._ChunkCodec.fits
     S.EVENT_COMPRESSION.clear()
     S.EVENT_COMPRESSION.update(compression)
     if zarr_path:
-        S._ChunkEncoder.fits = staticmethod(lambda arr: False)
+        S._ChunkCodec.fits = staticmethod(lambda arr: False)
     try:
         yield
     finally:
         S.EVENT_COMPRESSION.clear()
         S.EVENT_COMPRESSION.update(saved)
-        S._ChunkEncoder.fits = fits
+        S._ChunkCodec.fits = fits
 
 
 def disk_bytes(path: Path) -> int:

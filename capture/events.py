@@ -16,6 +16,7 @@ A table is a ``dict`` of equal-length NumPy columns; ``*_COLUMNS`` map each colu
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 
@@ -86,14 +87,22 @@ def concatenate(batches: Iterable[np.ndarray], dtype: np.dtype = EVENT_DTYPE) ->
     return np.concatenate([as_void(b) for b in batches]).view(dtype)
 
 
+def first_at(t_us: np.ndarray, value_us: int) -> int:
+    """Index of the first element of the non-decreasing ``t_us`` that is ``>= value_us``
+    (``np.searchsorted(t_us, value_us, side="left")``), without copying ``t_us``: NumPy copies a
+    strided column such as ``events["t"]`` whole before searching it (8 MB per million events),
+    a bisection reads about 20 of its elements."""
+    return bisect.bisect_left(t_us, value_us)
+
+
 def time_slice(events: np.ndarray, t_start_us: int | None = None, t_end_us: int | None = None) -> np.ndarray:
     """Events with ``t_start_us <= t < t_end_us`` (a view; ``None`` means unbounded).
 
     Uses binary search, so ``events["t"]`` must be non-decreasing.
     """
     t = events["t"]
-    i0 = 0 if t_start_us is None else int(np.searchsorted(t, t_start_us, side="left"))
-    i1 = len(t) if t_end_us is None else int(np.searchsorted(t, t_end_us, side="left"))
+    i0 = 0 if t_start_us is None else first_at(t, t_start_us)
+    i1 = len(t) if t_end_us is None else first_at(t, t_end_us)
     return events[i0:max(i0, i1)]
 
 

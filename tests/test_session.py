@@ -12,7 +12,7 @@ import pytest
 import zarr
 
 from capture import session as S
-from capture.events import EVENT_DTYPE, TRACK_COLUMNS, make_events, make_triggers, time_slice
+from capture.events import EVENT_DTYPE, TRACK_COLUMNS, first_at, make_events, make_triggers, time_slice
 
 
 def _events(n, seed=0, t_max=3_000_000, width=640, height=480):
@@ -285,7 +285,7 @@ def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkey
     stores = {}
     for name, ours in (("ours", True), ("zarr", False)):
         if not ours:
-            monkeypatch.setattr(S._ChunkEncoder, "fits", staticmethod(lambda arr: False))
+            monkeypatch.setattr(S._ChunkCodec, "fits", staticmethod(lambda arr: False))
         with S.create_session(tmp_path / name, width=640, height=480) as w:
             assert bool(w._events._encoders) == ours
             for a, b in zip(cuts, cuts[1:]):  # partly filled chunks, completed by later appends
@@ -307,6 +307,42 @@ def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkey
     chunk.write_bytes(bytes(data))
     with pytest.raises(S.SessionError, match="events/t"):
         S.open_session(tmp_path / "ours").events()
+
+
+def test_the_readers_chunk_decoder_reads_what_zarr_reads_and_follows_a_growing_store(tmp_path, monkeypatch):
+    """Reads decode the store's chunks themselves (delta, Blosc, CRC-32C) with the same rows as
+    Zarr's read path, and a reader that opened the arrays follows a writer that grew them since."""
+    monkeypatch.setattr(S, "EVENT_CHUNK", 1 << 12)
+    ev = _events(5 * S.EVENT_GROW_CHUNKS * (1 << 12) // 2, seed=21)  # 2.5 growth steps
+    first = 3 * (1 << 12) + 17
+    w = S.create_session(tmp_path / "s", width=640, height=480)
+    w.append_events(ev[:first])
+    w.flush()
+    r = S.open_session(tmp_path / "s")
+    assert np.array_equal(r.events(), ev[:first])
+    assert r._arrays[("events", "t")][1] is not None  # decoded by the store, not by Zarr
+    w.append_events(ev[first:])  # beyond the shape the reader's arrays had
+    w.flush()
+    assert np.array_equal(r.events(), ev)  # no reload: the reader reopens the arrays it needs
+    w.close()
+    g = zarr.open_group(str(tmp_path / "s"), mode="r", use_consolidated=False)
+    rng = np.random.default_rng(2)
+    cuts = [(0, 1), (4095, 4097), (4096, 8192), (len(ev) - 3, len(ev)), (0, len(ev))]
+    for a, b in cuts + [tuple(np.sort(rng.integers(0, len(ev), 2))) for _ in range(40)]:
+        for c in "txyp":
+            np.testing.assert_array_equal(r.read_column("events", c, a, b), g["events"][c][a:b])
+
+
+def test_first_at_is_searchsorted_on_a_strided_time_column():
+    """``first_at`` (a bisection that copies nothing) finds what ``np.searchsorted(side="left")``
+    finds: runs of equal times, values before, inside and after, on the ``t`` view of events."""
+    ev = _events(5000, seed=8, t_max=20_000)  # many equal times
+    t = ev["t"]
+    assert not t.flags.c_contiguous
+    values = np.concatenate([[0, t[0], t[-1], t[-1] + 1, t[2500]], t[::97] + 1, t[::89] - 1])
+    for v in values:
+        assert first_at(t, int(v)) == np.searchsorted(t, v, side="left"), v
+    assert first_at(t[:0], 5) == 0
 
 
 def test_event_arrays_grow_in_steps_while_recording_and_fit_at_close(tmp_path):

@@ -30,7 +30,7 @@ from tqdm import tqdm
 import spin
 from calib.intrinsics import Intrinsics
 from calib.store import event_camera
-from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, spin_table
+from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, first_at, spin_table
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
 from capture.pipeline.ball_view import ball_view
@@ -162,8 +162,7 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
             t = chunk["t"]
             if t[0] >= end_us:
                 break
-            lo, hi = np.searchsorted(t, [starts[0], end_us], side="left")
-            pieces.append(chunk[lo:hi])
+            pieces.append(chunk[first_at(t, starts[0]):first_at(t, end_us)])
         rows = flight.final
         i0 = int(np.searchsorted(rows.t_us, starts[0], side="right")) - 1
         i1 = int(np.searchsorted(rows.t_us, starts[-1], side="right")) + 1  # rows may share a time
@@ -176,7 +175,7 @@ def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before
         near = []
         for chunk in flight.near:
             if chunk["t"][-1] >= flight.next_start_us:
-                near.append(chunk[int(np.searchsorted(chunk["t"], flight.next_start_us, side="left")):])
+                near.append(chunk[first_at(chunk["t"], flight.next_start_us):])
         flight.near = near
         flight.final = rows.select(slice(max(0, int(np.searchsorted(rows.t_us, flight.next_start_us,
                                                                      side="right")) - 1), None))
@@ -284,7 +283,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
         """Keep, per flight, the events near its ball among those before ``before_us`` (all: None)."""
         while unread:
             ev = unread[0]
-            k = len(ev) if before_us is None else int(np.searchsorted(ev["t"], before_us, side="left"))
+            k = len(ev) if before_us is None else first_at(ev["t"], before_us)
             if k == 0:
                 break
             columns = [ev[c][:k] for c in ("t", "x", "y")]

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from capture.events import EVENT_DTYPE, Track, concatenate, spin_table
+from capture.events import EVENT_DTYPE, Track, concatenate, first_at, spin_table
 from capture.results import TRUST, format_flight_table, spin_components, window_table
 from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AXIS, BALL3D_SPHERE, BALL_AXIS,
                                    BALL_COLOR, BALL_IMAGE, BALL_RIM, DEFAULT_MAX_BALL_EVENTS_PER_SLICE, EVENTS_BALL,
@@ -178,7 +178,7 @@ class ReviewLogger:
         self._t_now = max(self._t_now, int(events["t"][-1]))
         ev = concatenate([self._carry, events]) if len(self._carry) else events
         last_start = int(ev["t"][-1]) // self.slice_us * self.slice_us
-        cut = int(np.searchsorted(ev["t"], last_start, side="left"))
+        cut = first_at(ev["t"], last_start)
         self._carry = ev[cut:].copy()
         self._emit(ev[:cut])
 
