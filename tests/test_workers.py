@@ -55,3 +55,13 @@ def test_shared_work_in_one_process_and_errors():
             work.results()
     with pytest.raises(ValueError, match="workers must be positive"):
         SharedWork(_slow_square, 0)
+
+
+def test_shared_work_starts_its_workers_before_the_first_unit():
+    """The pool comes up while the caller does its own work first (replay: tracking up to the
+    first spin unit), so that the first units go to a worker, not to the caller."""
+    with SharedWork(_slow_square, 2, max_queued=1) as work:
+        assert work._ready.wait(60) and work._pool is not None  # no unit added yet
+        work.add(3)
+        out = work.results()
+    assert out[0][0] == 9 and out[0][1] != os.getpid()

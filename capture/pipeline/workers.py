@@ -47,8 +47,10 @@ class SharedWork:
 
     Worker processes come from a forkserver (forking a process that has threads, as
     Zarr's or OpenCV's, can deadlock the child); they are started in a background
-    thread when the first unit is added, so that adding units never waits for them
-    (nor is anything started when there is no work). Use as a context manager.
+    thread at once, so that they are up when the first unit comes (a forkserver takes
+    about a second of CPU to start: replay's first spin units were run by the caller,
+    while it should have been tracking) and adding units never waits for them. Use as a
+    context manager.
     """
 
     def __init__(self, fn: Callable, workers: int, *, preload: Sequence[str] = (),
@@ -70,6 +72,8 @@ class SharedWork:
                                          name="SharedWork-start") if self._n_pool else None
         if self._starter is None:
             self._ready.set()
+        else:
+            self._starter.start()
 
     def _start(self, preload, initializer) -> None:
         pool = None
@@ -131,8 +135,6 @@ class SharedWork:
         with self._lock:
             self._queue.append((self._n_units, unit))
             self._n_units += 1
-        if self._starter is not None and self._starter.ident is None:  # the first unit
-            self._starter.start()
         self._feed()
         while len(self._queue) > (self._max_queued if self._n_pool else 0):
             self._run_one(newest=False)
