@@ -9,7 +9,7 @@ from functools import lru_cache
 import numpy as np
 
 from spin import lens, pixel_lag
-from spin.fast import FAST_EVENTS, estimate_fast
+from spin.fast import FAST_EVENTS, NARROW_SEARCH, estimate_fast
 from spin.objective import BallEvents, IweGeometry, contrast
 from spin.paper import PAPER_EVENTS, estimate_paper
 from spin.search import coarse_search, distinct_candidates
@@ -426,8 +426,9 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
     skipped when ``skip_errors`` (default), else the error propagates.  With
     ``warm_start`` (fast method), a window that follows a trusted estimate (confidence
     >= 0.5) of the same flight within ``WARM_GAP_US`` starts from it: it joins the
-    candidates and the coarse search keeps to speeds within a factor 2.2 of it
-    (``spin.fast.estimate_fast``'s ``prior_w_rad_s``); spin barely changes in flight.
+    candidates, the coarse search keeps to speeds within a factor 2.2 of it
+    (``spin.fast.estimate_fast``'s ``prior_w_rad_s``) and the search takes fewer starts
+    (``spin.fast.NARROW_SEARCH``); spin barely changes in flight.
     ``camera`` (``calib.Intrinsics`` of the event camera, or ``None``: orthographic) and
     ``circle`` (the track's circles are the detector's: ``"detected"``) go to
     :func:`estimate_spin`, as do the other options.
@@ -439,6 +440,8 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
         if (method == "fast" and warm_start and previous is not None and previous[0] == win.flight
                 and 0 <= win.t_start_us - previous[1] <= WARM_GAP_US and previous[2].confidence >= 0.5):
             kw.setdefault("prior_w_rad_s", previous[2].axis * previous[2].omega_rad_s)
+            for name, value in NARROW_SEARCH.items():  # the prior is a start: the narrow search suffices
+                kw.setdefault(name, value)
         try:
             est = estimate_spin(win.events, win.center, win.radius_px, t0_us=win.t_start_us,
                                 velocity=win.velocity_px_s, method=method, camera=camera, circle=circle, **kw)

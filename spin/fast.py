@@ -67,8 +67,9 @@ QUARTER_QUORUM = 2
 STRAY_FACTORS = (6.0, 3.0)
 # the cross-check's parts search with fewer starts (:func:`estimate_window`'s ``n_candidates``,
 # ``n_carry``) than the whole window: on the benchmark's tuning seeds as many windows were right
-# (55.8 %) and 340 against 347 were trusted, at 30 against 34 ms per estimate (median)
-PART_SEARCH = {"n_candidates": 3, "n_carry": 1}
+# (55.8 %) and 340 against 347 were trusted, at 30 against 34 ms per estimate (median); so do windows
+# that start from a trusted neighbour's answer (``spin.estimate_windows``), which is one of the starts
+NARROW_SEARCH = {"n_candidates": 3, "n_carry": 1}
 # a window turning through at least this much (rad: eight times a level's span) is checked on quarters
 QUARTERS_FROM_RAD = 8 * LEVELS[-1][0]
 # uncertainty (1 sigma): the halves' difference times these (axis, rate), at least the floors (deg, %).
@@ -250,7 +251,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     for i0, i1 in zip(bounds[:-1], bounds[1:]):
         events = _recentred(ev.take(slice(i0, i1)))
         own = estimate_window(events, velocity_px_s, assess=False, reference_w_rad_s=whole.w_rad_s,
-                              **{**PART_SEARCH, **opts})
+                              **{**NARROW_SEARCH, **opts})
         angle, log_ratio = _deviation(own.w_rad_s, whole.w_rad_s)
         w = own.w_rad_s
         if angle > CHECK_ANGLE_DEG or log_ratio > math.log(CHECK_RATIO):
