@@ -137,7 +137,8 @@ class _ChunkCodec:
     """Encodes and decodes whole chunks of one array exactly as its Zarr codecs would (delta,
     little-endian bytes, Blosc, CRC-32C), in the calling thread: about three times faster than
     Zarr's own write path, and reading twice as fast, where its copies and event-loop hops cost
-    more than the compression. Zarr reads the chunks back (and checks their checksums) as its own."""
+    more than the compression. The chunks are Zarr's own: Zarr reads them (and checks their
+    checksums) as it reads its own."""
 
     _SHUFFLE = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}
 
@@ -192,18 +193,32 @@ class _ChunkCodec:
             raise ValueError("stored and computed CRC-32C checksums do not match")
         out = np.empty(self.rows, self.dtype) if out is None else out
         self.blosc.decode(packed, out=out)
-        return out if self.delta is None else self.delta.decode(out, out=out)
+        if self.delta is not None:  # numcodecs' Delta decode, in place (its own decode copies)
+            np.cumsum(out, out=out)
+        return out
 
     def read(self, i0: int, i1: int) -> np.ndarray:
-        """Rows ``i0:i1`` (1-D arrays), chunks wholly inside decoded in place."""
+        """Rows ``i0:i1`` (``0 <= i0``; 1-D arrays), chunks wholly inside decoded in place; a chunk that
+        cannot be read raises :class:`_BadChunk` (its cause the error)."""
         out = np.empty(max(0, i1 - i0), self.dtype)
-        for c in range(i0 // self.rows, -(-i1 // self.rows)):
+        for c in range(i0 // self.rows, -(-i1 // self.rows)) if i1 > i0 else ():
             lo, hi = max(i0, c * self.rows), min(i1, (c + 1) * self.rows)
-            if hi - lo == self.rows:
-                self.get(c, out[lo - i0:hi - i0])
-            else:
-                out[lo - i0:hi - i0] = self.get(c)[lo - c * self.rows:hi - c * self.rows]
+            try:
+                if hi - lo == self.rows:
+                    self.get(c, out[lo - i0:hi - i0])
+                else:
+                    out[lo - i0:hi - i0] = self.get(c)[lo - c * self.rows:hi - c * self.rows]
+            except Exception as exc:
+                raise _BadChunk(c) from exc
         return out
+
+
+class _BadChunk(Exception):
+    """Chunk ``index`` of a column could not be read (:meth:`_ChunkCodec.read`)."""
+
+    def __init__(self, index: int):
+        super().__init__(index)
+        self.index = index
 
 
 def _columns_of(rows, fields: Mapping) -> dict[str, np.ndarray]:
@@ -1023,7 +1038,9 @@ class Session:
     """Read-only view of a session.
 
     Every read looks up the committed lengths anew, so a reader follows a live
-    writer's appends; :meth:`reload` refreshes the root attributes.
+    writer's appends; :meth:`reload` refreshes the root attributes, and must follow a store
+    replaced under the reader (``create_session(..., overwrite=True)``): the columns' arrays
+    are opened once (:meth:`_array`).
     """
 
     def __init__(self, path, cache_chunks: int = 0):
@@ -1059,13 +1076,25 @@ class Session:
         return n
 
     def read_column(self, name: str, column: str, i0: int, i1: int, step: int | None = None) -> np.ndarray:
-        """Rows ``i0:i1[:step]`` of a column; a damaged chunk (checksum, decompression or file
+        """Rows ``i0:i1[:step]`` of a column's committed rows (sliced as a list is: clipped to them,
+        negative indices counted from their end); a damaged chunk (checksum, decompression or file
         error) raises :class:`SessionError` naming the column and the chunk's rows."""
+        return self._rows(name, column, i0, i1, step, self._n(name))
+
+    def _rows(self, name: str, column: str, i0: int, i1: int, step: int | None, n: int) -> np.ndarray:
+        """:meth:`read_column` of a table of ``n`` committed rows."""
+        i0, i1, _ = slice(i0, i1).indices(n)
+        i1 = max(i0, i1)
         arr, codec = self._array(name, column, i1)
         try:
             if codec is not None and step is None and arr.ndim == 1:
                 return codec.read(i0, i1)
             return arr[i0:i1:step]
+        except _BadChunk as bad:
+            rows = arr.chunks[0]
+            raise SessionError(f"{self.path}: damaged session: {name}/{column} rows {bad.index * rows}.."
+                               f"{min((bad.index + 1) * rows, arr.shape[0]) - 1} cannot be read "
+                               f"({_reason(bad.__cause__)})") from bad.__cause__
         except Exception as exc:
             rows = arr.chunks[0]
             for c in range(i0 // rows, -(-i1 // rows)):  # find the first bad chunk
@@ -1142,7 +1171,7 @@ class Session:
             present = columns
         else:
             present = set(self.root[name].array_keys()) if name in self.root else set()
-        return {c: (self.read_column(name, c, i0, i1) if c in present else None) for c in columns}
+        return {c: (self._rows(name, c, i0, i1, None, n) if c in present else None) for c in columns}
 
     def events_range(self, i0: int, i1: int) -> np.ndarray:
         """Committed events with index ``i0 <= i < i1`` as an EVENT_DTYPE array."""

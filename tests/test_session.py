@@ -321,16 +321,27 @@ def test_the_readers_chunk_decoder_reads_what_zarr_reads_and_follows_a_growing_s
     r = S.open_session(tmp_path / "s")
     assert np.array_equal(r.events(), ev[:first])
     assert r._arrays[("events", "t")][1] is not None  # decoded by the store, not by Zarr
-    w.append_events(ev[first:])  # beyond the shape the reader's arrays had
+    zarr_path = S.open_session(tmp_path / "s")
+    monkeypatch.setattr(S._ChunkCodec, "fits", staticmethod(lambda arr: False))  # its arrays read by Zarr
+    assert np.array_equal(zarr_path.events(), ev[:first]) and zarr_path._arrays[("events", "t")][1] is None
+    w.append_events(ev[first:])  # beyond the shape the readers' arrays had
     w.flush()
-    assert np.array_equal(r.events(), ev)  # no reload: the reader reopens the arrays it needs
+    assert np.array_equal(zarr_path.events(), ev)  # no reload: the reader reopens the arrays it needs
+    assert np.array_equal(r.events(), ev)
     w.close()
     g = zarr.open_group(str(tmp_path / "s"), mode="r", use_consolidated=False)
     rng = np.random.default_rng(2)
-    cuts = [(0, 1), (4095, 4097), (4096, 8192), (len(ev) - 3, len(ev)), (0, len(ev))]
+    cuts = [(0, 1), (4095, 4097), (4096, 8192), (len(ev) - 3, len(ev)), (0, len(ev)),
+            (len(ev) - 1, len(ev) + 5), (-3, len(ev)), (7, 7), (9, 2)]  # sliced as Zarr slices
     for a, b in cuts + [tuple(np.sort(rng.integers(0, len(ev), 2))) for _ in range(40)]:
         for c in "txyp":
             np.testing.assert_array_equal(r.read_column("events", c, a, b), g["events"][c][a:b])
+    monkeypatch.undo()
+    later = S.open_session(tmp_path / "s")
+    assert np.array_equal(later.events(), ev)
+    (tmp_path / "s" / "events" / "y" / "c" / "5").unlink()  # a chunk gone after opening: its rows named
+    with pytest.raises(S.SessionError, match=r"events/y rows 20480\.\.24575 cannot be read \(FileNotFoundError"):
+        later.read_column("events", "y", 0, len(ev))
 
 
 def test_first_at_is_searchsorted_on_a_strided_time_column():
