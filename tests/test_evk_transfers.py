@@ -284,3 +284,27 @@ def test_libusb_queue_against_a_stub_libusb(monkeypatch):
     assert done.status == "cancelled" and bytes(done.buffer[:done.nbytes]) == b"part" and q.pending == 0
     q.close()
     assert stub.freed == len(stub.allocated) == 4  # a reaped transfer is reused or freed, never leaked
+
+
+def test_no_libusb_at_all_is_one_clear_error(monkeypatch):
+    """Neither a system libusb-1.0 nor the libusb-package wheel: EvkError naming both remedies."""
+    import builtins
+
+    import usb.backend.libusb1
+
+    from capture.evk import device
+    from capture.evk.errors import EvkError
+
+    real_import = builtins.__import__
+
+    def no_wheel(name, *args, **kwargs):
+        if name == "libusb_package":
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(usb.backend.libusb1, "get_backend", lambda *a, **k: None)
+    monkeypatch.setattr(builtins, "__import__", no_wheel)
+    assert device.libusb_backend() is None
+    monkeypatch.setattr(device.usb.core, "find", lambda **kw: (_ for _ in ()).throw(usb.core.NoBackendError("none")))
+    with pytest.raises(EvkError, match="no libusb backend found.*pip install libusb-package"):
+        device.list_devices()

@@ -104,8 +104,10 @@ def libusb_backend():
 
     backend = usb.backend.libusb1.get_backend()
     if backend is None:
-        import libusb_package
-
+        try:
+            import libusb_package
+        except ImportError:
+            return None
         backend = libusb_package.get_libusb1_backend()
     return backend
 
@@ -117,7 +119,8 @@ def _candidates(backend):
             custom_match=lambda d: (d.idVendor, d.idProduct) in BOARDS,
         ))
     except usb.core.NoBackendError as exc:
-        raise EvkError("no libusb backend found: install libusb-1.0 (e.g. apt install libusb-1.0-0)") from exc
+        raise EvkError("no libusb backend found: install libusb-1.0 (e.g. apt install libusb-1.0-0, or pip install "
+                       "libusb-package)") from exc
 
 
 class _UsbSession:

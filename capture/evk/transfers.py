@@ -80,7 +80,7 @@ def _bindings(lib):
     complete in the other's event loop."""
     import usb1
 
-    usb1.loadLibrary(lib)
+    usb1.loadLibrary(lib)  # False where it had loaded one already: the same library or not, as checked below
     import usb1.libusb1 as bindings
 
     def address(library, name):
