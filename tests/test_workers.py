@@ -65,3 +65,13 @@ def test_shared_work_starts_its_workers_before_the_first_unit():
         work.add(3)
         out = work.results()
     assert out[0][0] == 9 and out[0][1] != os.getpid()
+
+
+def test_shared_work_closed_while_its_workers_start_leaves_no_process():
+    import multiprocessing
+
+    work = SharedWork(_slow_square, 2)
+    work.close()  # at once: the start is under way
+    assert not work._starter.is_alive() and work._pool is None
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("SpawnProcess")
+                or p.name.startswith("ForkServerProcess")]
