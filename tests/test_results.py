@@ -97,6 +97,15 @@ def test_flights_without_a_trusted_window_are_listed_as_such():
     assert list(np.unique(w["flight"])) == [0, 1] and w["trusted"].sum() == 8
 
 
+def test_the_table_prints_no_negative_zero():
+    # a pure topspin about an axis a hair off: sidespin and gyro round to 0, never "-0"
+    v = (3000, 0)
+    t = flight_table(_track(v), _spin((0.0, -0.001, -1.0), 30.0, v))
+    t["sidespin_rpm"][0], t["gyro_rpm"][0] = -0.3, -0.2
+    row = format_flight_table(t).splitlines()[1]
+    assert " -0 " not in row + " " and row.split()[8:10] == ["0", "0"]
+
+
 def test_two_balls_in_view_at_once_keep_their_own_spin():
     # two flights over the same 100 ms (two balls): only the spin table's flight column tells
     # their windows apart
