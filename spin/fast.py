@@ -303,8 +303,8 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
         candidates and the coarse search keeps to speeds within a factor ``prior_span`` of it
         (which still holds omega/2 and 2 omega, the aliases of symmetric textures).
     assess : bool
-        Measure the confidence (else NaN, with no runner-up refined: the cross-check's halves need
-        only the answer).
+        Measure the confidence (else NaN, with no runner-up refined for a margin: the cross-check's
+        halves need only the answer).
     reference_w_rad_s : (3,), optional
         The answer a cross-check's part is compared with (rad/s): once this one strays more than
         ``STRAY_FACTORS`` times the check's limits from it, the levels stop (its exact value no longer
@@ -339,16 +339,17 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
     # first level: every candidate on the same events (chosen for the best one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
-    # every candidate takes a few steps (the best goes on at the next level)
+    # every candidate takes a few steps (the best ``n_carry`` distinct ones go on to the next level)
     results = sorted(maximise(sub, starts, v0, geometry(first), max_iterations=first[4], ftol=first[5]),
                      key=lambda m: -m.contrast)
     best = results[0]
     # a rival is another solution: at least 10 deg or 10 % away (nearer, it is the same maximum)
     rival = next((m for m in results[1:] if not _same_solution(m.w_rad_s, best.w_rad_s)), None)
-    # further levels: the winner only, over longer spans and finer IWEs, ending on the whole window;
-    # the runner-up is refined along with it on the second-last level's events, to measure the margin
-    # (it stops where it comes within reach of the winner: no rival then), and takes over where it
-    # scores higher there
+    # further levels: the winner only (on the second, with the first level's next best distinct answers,
+    # up to ``n_carry`` in all: the highest there wins), over longer spans and finer IWEs, ending on the
+    # whole window; the runner-up is refined along with it on the second-last level's events, to measure
+    # the margin (it stops where it comes within reach of the winner: no rival then), and takes over
+    # where it scores higher there
     w, v = best.w_rad_s, best.v_px_s
     margin = gain = 1.0
     for li, level in enumerate(levels[1:], start=1):
@@ -376,10 +377,11 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
                         max_iterations=iterations if velocity_known else 3 * iterations, ftol=ftol,
                         inverse_hessians=[m.inverse_hessian for m in runs], lifted=lifted,
                         stop_same=_same)
-        if len(runs) > 1:  # a run that reached the first's maximum stopped there: no rival
-            live = sorted((m for m in runs if not m.stopped), key=lambda m: -m.contrast)
-            best = live[0]
-            rival = next((m for m in live[1:] if not _same_solution(m.w_rad_s, best.w_rad_s)), None)
+        if len(runs) > 1:  # the highest wins; a run that reached the first's maximum stopped there: no rival
+            ranked = sorted(runs, key=lambda m: -m.contrast)
+            best = ranked[0]
+            rival = next((m for m in ranked[1:] if not m.stopped and not _same_solution(m.w_rad_s, best.w_rad_s)),
+                         None)
         else:
             best = runs[0]
         w, v = best.w_rad_s, best.v_px_s

@@ -148,10 +148,10 @@ def test_axis_near_image_plane_on_a_short_window_is_not_pulled_by_the_pixel_latt
      (853.9940689735349, 544.8082654041452), 60_000, 1018252582)])
 def test_the_first_levels_best_answers_are_refined_together(texture, axis, radius_px, center, n_events, sim_seed):
     # two windows of the benchmark's seeds 2000-2002 (``bench/spin_cases.draw``; 30 rps, still, 20 ms,
-    # ideal sensor): the narrow search (three coarse starts, two steps each, the best alone past the first
-    # level) ends about 80 deg off at 9-15 times the rate, flagged; eight starts whose best three go on
-    # together find the spin. (Such cases are knife-edged: the parameters rounded to six digits give
-    # events on which the narrow search finds the basketball's spin and the wide one misses the tennis
+    # ideal sensor): the search before (three coarse starts, two steps each, the best alone past the first
+    # level) ends about 80 deg off at 9-15 times the rate, flagged; eight starts, six steps, whose best three
+    # go on together find the spin. (Such cases are knife-edged: the parameters rounded to six digits give
+    # events on which the old search finds the basketball's spin and the new one misses the tennis
     # ball's; the benchmark measures the rates.)
     from spin import fast
 
@@ -162,10 +162,10 @@ def test_the_first_levels_best_answers_are_refined_together(texture, axis, radiu
     est = spin.estimate_spin(ev, truth["center"], truth["radius_px"], **kw)
     axis_deg, omega_rel = _errors(est, truth)
     assert axis_deg < 2.0 and omega_rel < 0.02 and est.confidence >= 0.5
-    narrow = spin.estimate_spin(ev, truth["center"], truth["radius_px"], n_candidates=3, n_carry=1,
+    before = spin.estimate_spin(ev, truth["center"], truth["radius_px"], n_candidates=3, n_carry=1,
                                 levels=((1.5, 12.0, 1.2, 500, 2, 1e-4),) + fast.LEVELS[1:], **kw)
-    axis_deg, omega_rel = _errors(narrow, truth)
-    assert (axis_deg > 20.0 or omega_rel > 0.2) and narrow.confidence < 0.5
+    axis_deg, omega_rel = _errors(before, truth)
+    assert (axis_deg > 20.0 or omega_rel > 0.2) and before.confidence < 0.5
 
 
 def test_a_window_after_a_trusted_one_starts_from_it_with_the_narrow_search(ball, monkeypatch):
