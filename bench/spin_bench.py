@@ -160,7 +160,8 @@ def _ok(r: dict) -> bool:
 
 
 def print_matrix(records: list[dict], title: str) -> None:
-    """Per-row table, totals against the goals, reliability table and uncertainty coverage."""
+    """Per-row table, totals against the goals, the same per value of each axis of the matrix (texture,
+    rate, motion, lens, sensor), reliability table and uncertainty coverage."""
     print(f"\n== {title}: {len(records)} windows ==")
     print(f"{'row':44s} {'n':>3s} {'ax med':>6s} {'ax mean':>7s} {'rps% med':>8s} {'rps% mean':>9s} "
           f"{'succ%':>6s} {'trust':>5s} {'c.fail':>6s} {'none':>4s} {'ms':>5s}")
@@ -186,6 +187,16 @@ def print_matrix(records: list[dict], title: str) -> None:
           f"confident failures {(trusted & ~ok).sum()} = {100 * (trusted & ~ok).mean():.2f} % of windows "
           f"(goal <= 0.5 %), ms per estimate mean {np.mean([r['ms'] for r in records]):.0f} "
           f"median {np.median([r['ms'] for r in records]):.0f}")
+    print("by axis of the matrix: right (5 deg / 5 %) / trusted / confidently wrong, % of its windows")
+    for axis, name in enumerate(("texture", "rps", "motion", "lens", "sensor")):
+        values = list(dict.fromkeys(r["row"][axis] for r in records))
+        cells = []
+        for value in values:
+            sel = [r for r in records if r["row"][axis] == value]
+            ok_v = np.array([_ok(r) for r in sel])
+            tr_v = np.array([r.get("confidence", 0.0) >= 0.5 for r in sel])
+            cells.append(f"{value} {100 * ok_v.mean():.0f}/{100 * tr_v.mean():.0f}/{100 * (tr_v & ~ok_v).mean():.1f}")
+        print(f"  {name:8s} " + ", ".join(cells))
     print("reliability: confidence bin -> windows, right (5 deg / 5 %), median axis error, median rps error")
     for lo, hi in ((0.0, 0.1), (0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.01)):
         sel = [r for r in records if "error" not in r and lo <= r["confidence"] < hi]
