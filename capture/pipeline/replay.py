@@ -34,7 +34,6 @@ from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, firs
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
 from capture.pipeline.ball_view import ball_view
-from capture.review import write_rrd
 from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
@@ -468,5 +467,7 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     store_results(session_path, track, spin_columns, options)
     if rrd_path is not None:
+        from capture.review import write_rrd  # Rerun's SDK takes 0.3 s to import: only when a review is asked for
+
         write_rrd(session_path, rrd_path, progress=progress, ball_view=ball_view)
     return ReplayResult(track, spin_columns, Path(rrd_path) if rrd_path else None)
