@@ -161,7 +161,8 @@ class _ChunkCodec:
         blosc, *rest = arr.compressors or (None,)
         return (isinstance(arr.store_path.store, zarr.storage.LocalStore) and arr.dtype.str[0] in "<|"
                 and (not filters or (len(filters) == 1 and isinstance(filters[0], Delta)
-                                     and filters[0].codec_config.get("dtype") == arr.dtype.str))
+                                     and filters[0].codec_config.get("dtype") == arr.dtype.str
+                                     and filters[0].codec_config.get("astype", arr.dtype.str) == arr.dtype.str))
                 and isinstance(blosc, BloscCodec) and blosc.blocksize == 0
                 and blosc.typesize == arr.dtype.itemsize
                 and len(rest) == 1 and isinstance(rest[0], Crc32cCodec))
