@@ -638,7 +638,7 @@ def near_track(t, x, y, t_row, ends, cx, cy, vx, vy, reach):
         if dx * dx + dy * dy <= reach[i] * reach[i]:
             out[k] = j
             k += 1
-    return out[:k].copy()
+    return _first(out, k)
 
 
 @functools.cache
