@@ -279,7 +279,8 @@ def format_flight_table(table: dict) -> str:
     for i in range(n):
         trusted = f"{table['n_trusted'][i]}/{table['n_windows'][i]}"
         if np.isfinite(table["rpm"][i]):
-            topspin, sidespin, gyro = (round(float(table[k][i])) + 0 for k in ("topspin_rpm", "sidespin_rpm", "gyro_rpm"))
+            # whole rpm as integers: a float rounding to zero would print "-0"
+            topspin, sidespin, gyro = (round(float(table[k][i])) for k in ("topspin_rpm", "sidespin_rpm", "gyro_rpm"))
             spin = (f"{table['rpm'][i]:>6.0f} ± {table['rpm_sigma'][i]:<4.0f} {topspin:>8d} "
                     f"{sidespin:>8d} {gyro:>7d} "
                     f"{100 * table['efficiency'][i]:>4.0f}% {table['tilt'][i]:>6}")
