@@ -26,6 +26,10 @@
    half strays beyond 5 deg / 5 % of the whole window's answer, and the halves' spread gives the
    uncertainty.  A half whose answer strays far stops refining early: it is refined again beside
    the whole window's answer on the same events, and the higher contrast speaks for the half.
+5. The image's period (:mod:`spin.period`): over a few turns the ball's image repeats once per turn
+   (or per fold of a texture's symmetry about the axis).  Its speed is a start of the search, the
+   answer's rate becomes it where the two lie within the cross-check's 5 %, and an answer turning
+   more than once per period (the image would repeat sooner) is not trusted.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spin.objective import BallEvents, IweGeometry, contrast, iwe_parts, lift_moving
+from spin.period import image_period, turn_speeds
 from spin.pixel_lag import Bursts, rate_bias_pct
 from spin.refine import maximise
 from spin.search import coarse_search, distinct_candidates, events_for_span
@@ -72,6 +77,10 @@ STRAY_FACTORS = (6.0, 3.0)
 NARROW_SEARCH = {"n_candidates": 3, "n_carry": 1}
 # a window turning through at least this much (rad: eight times a level's span) is checked on quarters
 QUARTERS_FROM_RAD = 8 * LEVELS[-1][0]
+# the fastest spin looked for (rad/s)
+OMEGA_MAX_RAD_S = 2 * np.pi * 1500.0
+# the folds of a texture's symmetry about its axis that the image's period may show (:func:`spin.period.turn_speeds`)
+PERIOD_FOLDS = (1, 2, 3, 4, 5, 6)
 # uncertainty (1 sigma): the halves' difference times these (axis, rate), at least the floors (deg, %).
 # Two independent halves differ with sqrt(2) times either's sigma; a half has half the events and
 # (time halves) half the rotation, which costs the rate about twice as much precision as the axis.
@@ -98,6 +107,7 @@ class FastResult:
     coverage_px: float
     disc_fill: float
     time_fill: float
+    period_s: float = float("nan")
     axis_sigma_deg: float = float("nan")
     rps_sigma_pct: float = float("nan")
     rps_lag_pct: float = float("nan")
@@ -176,6 +186,17 @@ def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_ev
     bins = np.minimum(((tau[0] - tau) * (n_bins / span)).astype(np.int64), n_bins - 1)
     counts = np.bincount(bins, minlength=n_bins)
     return float(np.mean(counts >= 0.1 * counts.mean()))
+
+
+def _period_speed(w, period_s: float) -> np.ndarray:
+    """``w`` (rad/s) at the speed the image's period ``period_s`` (s; NaN: none) gives, where its own lies
+    within the cross-check's ratio ``CHECK_RATIO`` of one of them (:data:`PERIOD_FOLDS`): the same rate
+    measured again, to a fraction of a percent and unbiased by the sensor's lag; else ``w``."""
+    omega = float(np.linalg.norm(w))
+    if math.isnan(period_s) or omega <= 0:
+        return w
+    near = [s for s in turn_speeds(period_s, PERIOD_FOLDS) if abs(math.log(s / omega)) < math.log(CHECK_RATIO)]
+    return w * (near[0] / omega) if near else w
 
 
 def _geometry(level, last: bool, radius_px: float, max_scale: float, hemispheres: bool) -> IweGeometry:
@@ -269,14 +290,16 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     # squared: on the benchmark's tuning seeds the product's windows between 0.5 and 0.7 were right only
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
     agree = float(np.clip((TRUST_WORST_ZERO - worst) / (TRUST_WORST_ZERO - TRUST_WORST_FULL), 0.0, 1.0))
+    # an answer turning more than once per period of the image contradicts it (the image would repeat sooner)
+    too_fast = float(np.linalg.norm(whole.w_rad_s)) * whole.period_s > 2 * np.pi * CHECK_RATIO
     confidence = (whole.confidence * agree * float(np.clip(1.75 - spread, 0.0, 1.0))
-                  * (0.5 if n_parts == 4 and found < QUARTER_QUORUM else 1.0)) ** 2
+                  * (0.5 if n_parts == 4 and found < QUARTER_QUORUM else 1.0) * (0.5 if too_fast else 1.0)) ** 2
     return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma,
                    rps_lag_pct=lag)
 
 
 def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,
-                    omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = 2 * np.pi * 1500.0,
+                    omega_min_rad_s: float = 2 * np.pi * 3.0, omega_max_rad_s: float = OMEGA_MAX_RAD_S,
                     omega_ratio: float = 1.6, n_candidates: int = 8, n_directions: int = 40,
                     coarse_events: int = 450, levels=LEVELS, max_scale: float = 2.0,
                     refine_velocity: bool | None = None, hemispheres: bool = False,
@@ -325,12 +348,20 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
         omega_max_rad_s = max(min(omega_max_rad_s, omega_prior * prior_span), omega_min_rad_s * omega_ratio)
     else:
         prior = None
+    found = image_period(ev, v0, min_period_s=math.pi / omega_max_rad_s)
+    period_s = float("nan") if found is None else found[0]
+    periodic = np.empty(0) if found is None else turn_speeds(period_s, PERIOD_FOLDS[:2])
+    periodic = periodic[(periodic >= omega_min_rad_s) & (periodic <= omega_max_rad_s)]
     omegas, directions, scores = coarse_search(
         ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
-        n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres)
+        n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres, extra_omegas_rad_s=periodic)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
-    if prior is not None:
-        starts = [prior] + [w for w in starts if not _same(w, prior, 30.0, 1.3)][:n_candidates - 1]
+    # the best direction at each speed the image's period gives is a start too (after a prior)
+    forced = [] if prior is None else [prior]
+    forced += [omegas[i] * directions[np.argmax(scores[i])] for i in range(len(omegas) - len(periodic), len(omegas))]
+    if forced:
+        starts = forced + [w for w in starts if all(not _same(w, f, 30.0, 1.3) for f in forced)]
+        starts = starts[:max(n_candidates, len(forced))]
     window_s = float(ev.tau_s.max() - ev.tau_s.min())
 
     def geometry(level):
@@ -392,9 +423,10 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
                 rival = None
             elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    w = _period_speed(w, period_s)
     if not assess:
         nan = float("nan")
-        return FastResult(w, v, best.contrast, best.success, nan, None, nan, nan, nan, nan, nan)
+        return FastResult(w, v, best.contrast, best.success, nan, None, nan, nan, nan, nan, nan, period_s)
     # half agreement at the second-last level's resolution and event count (as telling, 4x cheaper)
     agreement = _half_agreement(events_for_span(sub, 1e-9, np.inf, levels[-2][3]), w, v, geometry(levels[-2]))
     coverage_px = float(np.linalg.norm(w)) * window_s * r
@@ -412,4 +444,4 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
         rotation_rad = float(np.linalg.norm(w)) * window_s
         confidence *= 0.5 * (1.0 - in_plane * (1.0 - min(1.0, rotation_rad / (np.pi / 2))))
     return FastResult(w, v, best.contrast, best.success, confidence, None if rival is None else rival.w_rad_s,
-                      agreement, margin, coverage_px, disc_fill, time_fill)
+                      agreement, margin, coverage_px, disc_fill, time_fill, period_s)

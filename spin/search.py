@@ -132,11 +132,12 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
                   omega_ratio: float = 1.6, n_directions: int = 40, span_rad: float = 0.6,
                   n_events: int = 200, iwe_radius_px: float = 10.0, sigma: float = 1.0,
                   truncate: float = 2.0, hemispheres: bool = False, rows_per_call: int = 8,
-                  min_rotation_rad: float = 0.1):
+                  min_rotation_rad: float = 0.1, extra_omegas_rad_s=()):
     """Score table over the (omega, direction) grid (``ev`` time-sorted).
 
     Speeds that turn the ball by less than ``min_rotation_rad`` over the whole window
     are left out but for the fastest of them (they cannot be told apart from it).
+    ``extra_omegas_rad_s`` (rad/s) are scored too, as the last rows.
 
     Row ``omega`` uses ``n_events`` events spanning ``span_rad`` of rotation about ``t_ref``
     (:func:`events_for_span`).
@@ -153,6 +154,7 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
     omegas = omega_min_rad_s * omega_ratio ** np.arange(n_omega)
     window_s = max(float(ev.tau_s[0] - ev.tau_s[-1]), 1e-9)
     omegas = omegas[max(0, int(np.searchsorted(omegas * window_s, min_rotation_rad)) - 1):]
+    omegas = np.concatenate([omegas, np.asarray(extra_omegas_rad_s, dtype=np.float64)])
     n_omega = len(omegas)
     directions = fibonacci_sphere(n_directions)
     geometry = IweGeometry(ev.radius_px, min(1.0, iwe_radius_px / ev.radius_px), sigma, hemispheres, truncate,

@@ -1,0 +1,109 @@
+"""The image's period (spin.period): the rate from the events' autocorrelation, and how the fast
+estimator uses it (a start, the rate, a check)."""
+
+import math
+
+import numpy as np
+import pytest
+
+import sim
+import spin.fast as fast
+from spin.estimate import prepare
+from spin.objective import BallEvents
+from spin.period import image_period, turn_speeds
+
+MIN_PERIOD_S = math.pi / fast.OMEGA_MAX_RAD_S  # half a turn at the fastest spin looked for
+
+
+def _ball(texture, rps, duration_s, sensor="ideal", seed=3):
+    events, truth = sim.spinning_ball(texture, rps=rps, axis=(0.4, -0.3, 0.85), radius_px=30, n_events=None,
+                                      duration_s=duration_s, seed=seed, sensor=sensor)
+    ev, _ = prepare(events, truth["center"], truth["radius_px"], dither=True, thin_to=24_000)
+    return ev, truth
+
+
+@pytest.mark.parametrize("texture, sensor", [("soccer", "ideal"), ("logo", "realistic")])
+def test_period_of_a_ball_over_many_turns_is_one_turn(texture, sensor):
+    ev, truth = _ball(texture, 800, 0.012, sensor)
+    assert float(ev.s_s[-1] - ev.s_s[0]) * truth["rps"] > 5  # premise: several turns
+    period_s, peak = image_period(ev, (0.0, 0.0), min_period_s=MIN_PERIOD_S)
+    assert period_s * truth["rps"] == pytest.approx(1.0, abs=0.002)
+    assert 0.15 < peak <= 1.0
+
+
+def test_no_period_in_less_than_two_turns():
+    ev, truth = _ball("soccer", 100, 0.012)
+    assert float(ev.s_s[-1] - ev.s_s[0]) * truth["rps"] < 2
+    assert image_period(ev, (0.0, 0.0), min_period_s=MIN_PERIOD_S) is None
+
+
+def test_no_period_in_noise():
+    rng = np.random.default_rng(0)
+    n = 20_000
+    x, y = rng.uniform(-30, 30, (2, n)).astype(np.float32)
+    s = np.sort(rng.uniform(0, 0.02, n)).astype(np.float32)
+    ev = BallEvents(x, y, s, s[n // 2] - s, np.where(rng.random(n) < 0.5, 1.0, -1.0).astype(np.float32), 30.0)
+    assert image_period(ev, (0.0, 0.0), min_period_s=MIN_PERIOD_S) is None
+
+
+def _repeating(period_s, span_s=0.02, n_cells=300, seed=1):
+    """Events that repeat every ``period_s``: each of ``n_cells`` random points fires at its own phase."""
+    rng = np.random.default_rng(seed)
+    px, py = rng.uniform(-28, 28, (2, n_cells))
+    phase = rng.uniform(0, period_s, n_cells)
+    turns = np.arange(int(span_s / period_s))
+    t = (phase[:, None] + period_s * turns[None, :] + rng.normal(0, 5e-6, (n_cells, len(turns)))).ravel()
+    order = np.argsort(t)
+    x = np.repeat(px, len(turns))[order].astype(np.float32)
+    y = np.repeat(py, len(turns))[order].astype(np.float32)
+    s = (t[order] - t.min()).astype(np.float32)
+    return BallEvents(x, y, s, s[len(s) // 2] - s, np.ones(len(s), np.float32), 30.0)
+
+
+def test_a_repeat_shorter_than_the_shortest_period_looked_for_is_the_fundamental():
+    # a texture with a three-fold symmetry about the axis repeats every third of a turn: the
+    # autocorrelation peaks at that lag and at each multiple; the one taken is the shortest
+    period_s = 0.6 * MIN_PERIOD_S
+    found, _ = image_period(_repeating(period_s, span_s=0.01), (0.0, 0.0), min_period_s=MIN_PERIOD_S)
+    assert found == pytest.approx(period_s, rel=0.002)
+
+
+def test_turn_speeds_are_the_folds_of_the_period():
+    np.testing.assert_allclose(turn_speeds(0.002, (1, 2, 3)), 2 * np.pi / np.array([0.002, 0.004, 0.006]))
+
+
+@pytest.mark.parametrize("ratio, snapped", [(1.03, True), (0.97, True), (1.08, False), (2.0 / 3.0, False)])
+def test_the_rate_takes_the_period_where_the_answer_lies_near_one_of_its_folds(ratio, snapped):
+    period_s = 0.002
+    w = np.array([0.0, 0.6, 0.8]) * (2 * np.pi / (2 * period_s)) * ratio  # near the two-fold speed
+    out = fast._period_speed(w, period_s)
+    np.testing.assert_allclose(out / np.linalg.norm(out), w / np.linalg.norm(w))
+    expect = 2 * np.pi / (2 * period_s) if snapped else np.linalg.norm(w)
+    assert np.linalg.norm(out) == pytest.approx(expect, rel=1e-9)
+    np.testing.assert_array_equal(fast._period_speed(w, float("nan")), w)
+
+
+@pytest.mark.parametrize("turns_per_period, trusted", [(1.0, True), (2.0, False), (3.0, False)])
+def test_an_answer_turning_more_than_once_per_period_of_the_image_is_flagged(monkeypatch, turns_per_period, trusted):
+    ev, _ = _ball("volleyball", 100, 0.003)
+    w = np.array([0.0, 0.0, 2 * np.pi * 200.0])
+    period_s = turns_per_period / 200.0
+
+    def fake_window(events, velocity_px_s, assess=True, **_):  # every part agrees exactly
+        return fast.FastResult(w, np.zeros(2), 1.0, True, 1.0 if assess else float("nan"), None, 1, 1, 10, 1, 1,
+                               period_s)
+
+    monkeypatch.setattr(fast, "estimate_window", fake_window)
+    res = fast.estimate_fast(ev, (0.0, 0.0))
+    assert (res.confidence >= 0.5) == trusted
+
+
+def test_the_estimate_over_many_turns_has_the_period_rate():
+    events, truth = sim.spinning_ball("soccer", rps=800, axis=(0.4, -0.3, 0.85), radius_px=30, n_events=None,
+                                      duration_s=0.008, seed=3, sensor="realistic")
+    ev, _ = prepare(events, truth["center"], truth["radius_px"], dither=True, thin_to=24_000)
+    res = fast.estimate_fast(ev, (0.0, 0.0))
+    period_s, _ = image_period(ev, (0.0, 0.0), min_period_s=MIN_PERIOD_S)
+    assert res.period_s == pytest.approx(period_s)
+    assert np.linalg.norm(res.w_rad_s) * period_s == pytest.approx(2 * np.pi, rel=1e-6)
+    assert np.linalg.norm(res.w_rad_s) / truth["omega_rad_s"] == pytest.approx(1.0, abs=0.003)
