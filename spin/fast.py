@@ -27,9 +27,10 @@
    uncertainty.  A half whose answer strays far stops refining early: it is refined again beside
    the whole window's answer on the same events, and the higher contrast speaks for the half.
 5. The image's period (:mod:`spin.period`): over a few turns the ball's image repeats once per turn
-   (or per fold of a texture's symmetry about the axis).  Its speed is a start of the search, the
-   answer's rate becomes it where the two lie within the cross-check's 5 %, and an answer turning
-   more than once per period (the image would repeat sooner) is not trusted.
+   (or per fold of a texture's symmetry about the axis).  Its speed is a start of the search; the
+   whole window's events folded over the turns at that speed are searched again (:func:`_folded_answer`);
+   the answer's rate becomes the period's where the two lie within the cross-check's 5 %, and an
+   answer turning more than once per period (the image would repeat sooner) is not trusted.
 """
 
 from __future__ import annotations
@@ -186,6 +187,54 @@ def _time_fill(ev: BallEvents, n_bins: int = 64, min_bin_s: float = 2e-6, max_ev
     bins = np.minimum(((tau[0] - tau) * (n_bins / span)).astype(np.int64), n_bins - 1)
     counts = np.bincount(bins, minlength=n_bins)
     return float(np.mean(counts >= 0.1 * counts.mean()))
+
+
+def _folded(ev: BallEvents, velocity_px_s, omega_rad_s: float) -> BallEvents:
+    """``ev`` folded over the turns of a spin at ``omega_rad_s``: each event's ``tau`` less the whole turns
+    in it (within half a turn of ``t_ref``), positions in the ball's frame (the centre's motion at
+    ``velocity_px_s`` taken out: warp them with no velocity), sorted by time again; events beyond the
+    radius there are dropped.  At that speed an event turns by the same rotation either way."""
+    vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
+    period = ev.tau_s.dtype.type(2 * np.pi / omega_rad_s)
+    tau = np.remainder(ev.tau_s + period / 2, period) - period / 2
+    x, y = ev.x_px - vx * ev.s_s, ev.y_px - vy * ev.s_s
+    inside = x * x + y * y < ev.radius_px ** 2
+    order = np.flatnonzero(inside)[np.argsort(-tau[inside], kind="stable")]
+    tau = tau[order]
+    return BallEvents(x[order], y[order], -tau, tau, ev.weight[order], ev.radius_px)
+
+
+def _folded_answer(ev: BallEvents, w, v, speeds, *, levels, max_scale: float, hemispheres: bool) -> np.ndarray:
+    """The best answer (rad/s) at one of the image period's ``speeds`` (rad/s), searched on the events
+    folded over its turns, or ``w`` (the search's answer on the events as they are).
+
+    Folded, every turn's events of one side of the ball fill the same half turn: a sparse texture seen
+    over many turns shows its seams as often as it passed them, where the levels' spans (1.5 rad of
+    rotation, one turn's worth of events) hold them once.  At each speed the whole search runs on the
+    folded events, the speed held within 10 %, and its answer at that speed is compared there (the last
+    level's events and IWE) with ``w`` at that speed where ``w`` lies within ``CHECK_RATIO`` of it; an
+    answer near none of the speeds (the period contradicts it) gives way to the best folded one.
+    """
+    level = levels[-1]
+    geometry = _geometry(level, True, ev.radius_px, max_scale, hemispheres)
+    omega = float(np.linalg.norm(w))
+    best_contrast, best_w = -np.inf, w
+    for speed in speeds:
+        folded = _folded(ev, v, speed)
+        if len(folded) < len(ev) // 2:  # the velocity moves most events off the disc: no folding
+            continue
+        alt = estimate_window(folded, (0.0, 0.0), omega_min_rad_s=speed / 1.1, omega_max_rad_s=speed * 1.1,
+                              assess=False, levels=levels, max_scale=max_scale, hemispheres=hemispheres,
+                              refine_velocity=False)
+        answers = [alt.w_rad_s * (speed / float(np.linalg.norm(alt.w_rad_s)))]
+        if omega > 0 and abs(math.log(speed / omega)) < math.log(CHECK_RATIO):
+            answers.append(w * (speed / omega))
+        sub = events_for_span(folded, speed, level[0], level[3])
+        for answer in answers:
+            c = float(contrast(sub, answer, np.zeros(2), geometry, gradient=False))
+            if c > best_contrast:
+                best_contrast, best_w = c, answer
+    return best_w
 
 
 def _period_speed(w, period_s: float) -> np.ndarray:
@@ -423,6 +472,10 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
                 rival = None
             elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
+    # the whole window only (the cross-check's parts search as they are); the gain and the margin stay
+    # those of the unfolded search's own answer
+    if assess and len(periodic):
+        w = _folded_answer(ev, w, v, periodic, levels=levels, max_scale=max_scale, hemispheres=hemispheres)
     w = _period_speed(w, period_s)
     if not assess:
         nan = float("nan")
