@@ -204,31 +204,36 @@ def _folded(ev: BallEvents, velocity_px_s, omega_rad_s: float) -> BallEvents:
     return BallEvents(x[order], y[order], -tau, tau, ev.weight[order], ev.radius_px)
 
 
-def _folded_answer(ev: BallEvents, w, v, speeds, *, levels, max_scale: float, hemispheres: bool) -> np.ndarray:
-    """The best answer (rad/s) at one of the image period's ``speeds`` (rad/s), searched on the events
-    folded over its turns, or ``w`` (the search's answer on the events as they are).
+def _folded_answer(ev: BallEvents, w, v, period_s: float, speeds, *, levels, max_scale: float,
+                   hemispheres: bool) -> np.ndarray:
+    """The best answer (rad/s) at one of the speeds of the image's period ``period_s`` (s), searched on
+    the events folded over its turns, or ``w`` (the search's answer on the events as they are).
 
     Folded, every turn's events of one side of the ball fill the same half turn: a sparse texture seen
     over many turns shows its seams as often as it passed them, where the levels' spans (1.5 rad of
-    rotation, one turn's worth of events) hold them once.  At each speed the whole search runs on the
-    folded events, the speed held within 10 %, and its answer at that speed is compared there (the last
-    level's events and IWE) with ``w`` at that speed where ``w`` lies within ``CHECK_RATIO`` of it; an
-    answer near none of the speeds (the period contradicts it) gives way to the best folded one.
+    rotation, one turn's worth of events) hold them once.  At each of ``speeds`` (rad/s) the whole
+    search runs again on the events folded at that speed (its coarse grid at 1/1.1 and 1.45 times that
+    speed, the refinement free), and its answer, brought to that speed, is scored there (the last
+    level's events and IWE).  ``w``, where it
+    lies within ``CHECK_RATIO`` of a speed of the period (any of :data:`PERIOD_FOLDS`), is scored the
+    same way at that speed; the highest score wins.  An answer near none of them (the period
+    contradicts it) gives way to the best folded one.
     """
     level = levels[-1]
     geometry = _geometry(level, True, ev.radius_px, max_scale, hemispheres)
     omega = float(np.linalg.norm(w))
+    near = [s for s in turn_speeds(period_s, PERIOD_FOLDS) if abs(math.log(s / omega)) < math.log(CHECK_RATIO)]
     best_contrast, best_w = -np.inf, w
-    for speed in speeds:
+    for speed in list(speeds) + [s for s in near[:1] if not np.any(np.isclose(speeds, s))]:
         folded = _folded(ev, v, speed)
         if len(folded) < len(ev) // 2:  # the velocity moves most events off the disc: no folding
             continue
-        alt = estimate_window(folded, (0.0, 0.0), omega_min_rad_s=speed / 1.1, omega_max_rad_s=speed * 1.1,
-                              assess=False, levels=levels, max_scale=max_scale, hemispheres=hemispheres,
-                              refine_velocity=False)
-        answers = [alt.w_rad_s * (speed / float(np.linalg.norm(alt.w_rad_s)))]
-        if omega > 0 and abs(math.log(speed / omega)) < math.log(CHECK_RATIO):
-            answers.append(w * (speed / omega))
+        answers = [w * (speed / omega)] if near and np.isclose(near[0], speed) else []
+        if np.any(np.isclose(speeds, speed)):
+            alt = estimate_window(folded, (0.0, 0.0), omega_min_rad_s=speed / 1.1, omega_max_rad_s=speed * 1.1,
+                                  assess=False, levels=levels, max_scale=max_scale,
+                                  hemispheres=hemispheres, refine_velocity=False)
+            answers.append(alt.w_rad_s * (speed / float(np.linalg.norm(alt.w_rad_s))))
         sub = events_for_span(folded, speed, level[0], level[3])
         for answer in answers:
             c = float(contrast(sub, answer, np.zeros(2), geometry, gradient=False))
@@ -295,8 +300,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     window's answer: the others agreed only through the whole's answer refined on them, and a sparse or
     symmetric texture seen over many turns can align as well on a wrong spin in each (a one-logo ball
     33 deg off at 800 rps with its four quarters "agreeing", a tennis ball 57 deg off at 1,200 rps with
-    one).  The product is squared (see the code): a window is trusted (0.5) only while its 2 sigma stays
-    within about 5 deg / 5 % and every part within about 5 deg / 5 % of its answer.
+    one), and where the answer turns more than once per period of the image (``period_s``: the image
+    would repeat sooner; rare once the whole window's answer is chosen at the period's speeds, see
+    :func:`_folded_answer`).  The product is squared (see the code): a window is trusted (0.5) only
+    while its 2 sigma stays within about 5 deg / 5 % and every part within about 5 deg / 5 % of its
+    answer.
 
     The uncertainty (1 sigma) is the difference of the first and the last part scaled by ``SIGMA_SCALE_AXIS`` /
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; the rate's also holds,
@@ -405,9 +413,13 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
         ev, v0, omega_min_rad_s=omega_min_rad_s, omega_max_rad_s=omega_max_rad_s, omega_ratio=omega_ratio,
         n_directions=n_directions, n_events=coarse_events, hemispheres=hemispheres, extra_omegas_rad_s=periodic)
     starts = distinct_candidates(omegas, directions, scores, n_candidates)
-    # the best direction at each speed the image's period gives is a start too (after a prior)
+    # the best direction at each speed the image's period gives is a start too, first after a prior
+    # (the first level's events are chosen for the first start's speed)
     forced = [] if prior is None else [prior]
-    forced += [omegas[i] * directions[np.argmax(scores[i])] for i in range(len(omegas) - len(periodic), len(omegas))]
+    for i in range(len(omegas) - len(periodic), len(omegas)):
+        start = omegas[i] * directions[np.argmax(scores[i])]
+        if all(not _same(start, f, 30.0, 1.3) for f in forced):
+            forced.append(start)
     if forced:
         starts = forced + [w for w in starts if all(not _same(w, f, 30.0, 1.3) for f in forced)]
         starts = starts[:max(n_candidates, len(forced))]
@@ -416,7 +428,7 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
     def geometry(level):
         return _geometry(level, level is levels[-1], r, max_scale, hemispheres)
 
-    # first level: every candidate on the same events (chosen for the best one's omega)
+    # first level: every candidate on the same events (chosen for the first one's omega)
     first = levels[0]
     sub = events_for_span(ev, float(np.linalg.norm(starts[0])), first[0], first[3])
     # every candidate takes a few steps (the best ``n_carry`` distinct ones go on to the next level)
@@ -472,10 +484,13 @@ def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = Tru
                 rival = None
             elif rival is not None:
                 margin = max(0.0, best.contrast - rival.contrast) / max(best.contrast - still, 1e-30)
-    # the whole window only (the cross-check's parts search as they are); the gain and the margin stay
-    # those of the unfolded search's own answer
+    # the whole window only (the cross-check's parts search as they are); the contrast, the gain and
+    # the margin stay those of the unfolded search's answer, which is the runner-up where it loses
+    unfolded = w
     if assess and len(periodic):
-        w = _folded_answer(ev, w, v, periodic, levels=levels, max_scale=max_scale, hemispheres=hemispheres)
+        w = _folded_answer(ev, w, v, period_s, periodic, levels=levels, max_scale=max_scale, hemispheres=hemispheres)
+        if not _same_solution(w, unfolded):
+            rival = replace(best, w_rad_s=unfolded)
     w = _period_speed(w, period_s)
     if not assess:
         nan = float("nan")

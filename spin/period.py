@@ -46,6 +46,8 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
         within 70 % of the highest (the others are its multiples).  A period whose double lies
         inside the window must show a peak there too, at least half as high.
     """
+    if not min_period_s > 0:
+        raise ValueError(f"min_period_s must be positive, not {min_period_s}")
     if len(ev) < 2:
         return None
     span_s = float(ev.s_s[-1] - ev.s_s[0])
@@ -67,7 +69,7 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
     # shortest period looked for: the fundamental is the shortest such repeat
     for m in (3, 2):
         j = _local_peak(a, k / m)
-        if j is not None and j >= 6 and a[j] >= 0.7 * a[k]:
+        if j is not None and j >= 6 and a[j] >= 0.7 * a[k] and a[j] > min_peak:
             k = j
             break
     if a[k] - a[1:k].min() < min_prominence:
