@@ -55,7 +55,8 @@ class SpinEstimate:
         Uncertainty (1 sigma) of the axis (deg) and of the rate (% of ``rps``), from the
         spread of the estimates on the two halves of the events and, for the rate, the trails the
         sensor's lag leaves behind the ball's texture (``spin.fast.estimate_fast``,
-        :mod:`spin.pixel_lag`); NaN for ``method="paper"``.
+        :mod:`spin.pixel_lag`); a rate of one turn per period of the image (:mod:`spin.period`,
+        windows of several turns) has no lag term and a lower floor; NaN for ``method="paper"``.
     rps_lag_pct : float
         The part of ``rps_sigma_pct`` from the sensor's lag (% of ``rps``, 1 sigma, in quadrature
         with the rest): a bias that the windows of a flight share, so averaging them does not

@@ -115,6 +115,9 @@ def test_the_estimate_over_many_turns_has_the_period_rate(monkeypatch):
     assert res.period_s == pytest.approx(period_s)
     assert np.linalg.norm(res.w_rad_s) * period_s == pytest.approx(2 * np.pi, rel=1e-6)
     assert np.linalg.norm(res.w_rad_s) / truth["omega_rad_s"] == pytest.approx(1.0, abs=0.003)
+    # measured by the period, the rate's uncertainty has no part from the sensor's lag and a lower floor
+    assert res.rps_lag_pct == 0.0
+    assert fast.PERIOD_SIGMA_FLOOR_PCT <= res.rps_sigma_pct < fast.SIGMA_FLOOR_PCT
 
 
 def test_folding_over_the_turns_keeps_every_events_rotation():
