@@ -142,8 +142,8 @@ def test_folding_over_the_turns_keeps_every_events_rotation():
     assert float(fast.contrast(other, w, np.zeros(2), geometry, gradient=False)) < 0.9 * float(c_folded)
 
 
-def test_a_one_logo_ball_over_many_turns_is_found_on_its_folded_events(monkeypatch):
-    events, truth = sim.spinning_ball("tabletennis", rps=800, axis=(0.4, -0.3, 0.85), radius_px=30, n_events=None,
+def test_a_baseball_over_many_turns_is_found_on_its_folded_events(monkeypatch):
+    events, truth = sim.spinning_ball("baseball", rps=800, axis=(0.4, -0.3, 0.85), radius_px=30, n_events=None,
                                       duration_s=0.008, seed=2)
     ev, _ = prepare(events, truth["center"], truth["radius_px"], dither=True, thin_to=24_000)
     w_true = truth["axis"] * truth["omega_rad_s"]
