@@ -116,8 +116,14 @@ def test_the_estimate_over_many_turns_has_the_period_rate(monkeypatch):
     assert np.linalg.norm(res.w_rad_s) * period_s == pytest.approx(2 * np.pi, rel=1e-6)
     assert np.linalg.norm(res.w_rad_s) / truth["omega_rad_s"] == pytest.approx(1.0, abs=0.003)
     # measured by the period, the rate's uncertainty has no part from the sensor's lag and a lower floor
+    monkeypatch.setattr(fast, "rate_bias_pct", lambda *_: 5.0)  # a lag the ball's bursts would show
+    res = fast.estimate_fast(ev, (0.0, 0.0))
     assert res.rps_lag_pct == 0.0
     assert fast.PERIOD_SIGMA_FLOOR_PCT <= res.rps_sigma_pct < fast.SIGMA_FLOOR_PCT
+    monkeypatch.setattr(fast, "PERIOD_SIGMA_MIN_PERIODS", 1e9)  # as over too few periods
+    res = fast.estimate_fast(ev, (0.0, 0.0))
+    assert res.rps_lag_pct == pytest.approx(5.0 * fast.LAG_SIGMA_SCALE)
+    assert res.rps_sigma_pct >= fast.SIGMA_FLOOR_PCT
 
 
 def test_folding_over_the_turns_keeps_every_events_rotation():
