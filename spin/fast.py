@@ -235,8 +235,7 @@ def _folded_answer(ev: BallEvents, w, v, period_s: float, speeds, *, levels, max
     level = levels[-1]
     geometry = _geometry(level, True, ev.radius_px, max_scale, _far_side(len(levels) - 1, hemispheres))
     omega = float(np.linalg.norm(w))
-    near = [] if omega <= 0 else [
-        s for s in turn_speeds(period_s, PERIOD_FOLDS) if abs(math.log(s / omega)) < math.log(CHECK_RATIO)]
+    near = _near_folds(w, period_s)
     best_contrast, best_w = -np.inf, w
     for speed in list(speeds) + [s for s in near[:1] if not np.any(np.isclose(speeds, s))]:
         folded = _folded(ev, v, speed)
@@ -260,11 +259,17 @@ def _period_speed(w, period_s: float) -> np.ndarray:
     """``w`` (rad/s) at the speed the image's period ``period_s`` (s; NaN: none) gives, where its own lies
     within the cross-check's ratio ``CHECK_RATIO`` of one of them (:data:`PERIOD_FOLDS`): the same rate
     measured again, to a fraction of a percent and unbiased by the sensor's lag; else ``w``."""
+    near = _near_folds(w, period_s)
+    return w * (near[0] / float(np.linalg.norm(w))) if near else w
+
+
+def _near_folds(w, period_s: float) -> list[float]:
+    """The speeds (rad/s) of the period ``period_s``'s folds (:data:`PERIOD_FOLDS`) within ``CHECK_RATIO``
+    of ``w``'s (rad/s); none for a NaN period or a zero ``w``."""
     omega = float(np.linalg.norm(w))
     if math.isnan(period_s) or omega <= 0:
-        return w
-    near = [s for s in turn_speeds(period_s, PERIOD_FOLDS) if abs(math.log(s / omega)) < math.log(CHECK_RATIO)]
-    return w * (near[0] / omega) if near else w
+        return []
+    return [s for s in turn_speeds(period_s, PERIOD_FOLDS) if abs(math.log(s / omega)) < math.log(CHECK_RATIO)]
 
 
 def _far_side(li: int, hemispheres: bool) -> bool:

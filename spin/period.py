@@ -7,8 +7,8 @@ cell, polarity and time bin; the autocorrelation in time of every such count, su
 over cells, peaks at the period and its multiples.  Where a window spans a few turns this
 measures the rate to a fraction of a percent, independently of the contrast the warp
 scores: a sparse texture (seams, one logo) that the warp's search misses over many turns
-still repeats.  A texture with a symmetry about the spin axis repeats at a fraction of the
-period (half a turn for a two-fold one): :func:`turn_speeds`.
+still repeats.  A texture with a symmetry about the spin axis repeats after a fraction of a
+turn (half a turn for a two-fold one): :func:`turn_speeds` gives the speeds a period allows.
 """
 
 from __future__ import annotations
