@@ -236,13 +236,17 @@ def _folded_answer(ev: BallEvents, w, v, period_s: float, speeds, *, levels, max
     geometry = _geometry(level, True, ev.radius_px, max_scale, _far_side(len(levels) - 1, hemispheres))
     omega = float(np.linalg.norm(w))
     near = _near_folds(w, period_s)
+    own = near[0] if near else None  # the fold of the period that ``w`` lies near
+    runs = [(speed, True) for speed in speeds]  # (speed, search there)
+    if own is not None and not np.any(np.isclose(speeds, own)):
+        runs.append((own, False))
     best_contrast, best_w = -np.inf, w
-    for speed in list(speeds) + [s for s in near[:1] if not np.any(np.isclose(speeds, s))]:
+    for speed, search in runs:
         folded = _folded(ev, v, speed)
         if len(folded) < len(ev) // 2:  # the velocity moves most events off the disc: no folding
             continue
-        answers = [w * (speed / omega)] if near and np.isclose(near[0], speed) else []
-        if np.any(np.isclose(speeds, speed)):
+        answers = [w * (speed / omega)] if own is not None and np.isclose(own, speed) else []
+        if search:
             alt = estimate_window(folded, (0.0, 0.0), omega_min_rad_s=speed / 1.1, omega_max_rad_s=speed * 1.1,
                                   assess=False, levels=levels, max_scale=max_scale,
                                   hemispheres=hemispheres, refine_velocity=False)
@@ -349,7 +353,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
         return replace(whole, confidence=0.5 * whole.confidence)
     # windows over many turns are checked on quarters (each still spans more than a level uses): on
     # them, a sparse or symmetric texture can alias the same way in both halves
-    turns_rad = float(np.linalg.norm(whole.w_rad_s)) * float(ev.tau_s[0] - ev.tau_s[-1])
+    omega = float(np.linalg.norm(whole.w_rad_s))
+    window_s = float(ev.tau_s[0] - ev.tau_s[-1])
+    turns_rad = omega * window_s
     n_parts = 4 if turns_rad >= QUARTERS_FROM_RAD and len(ev) // 4 >= min_half_events else 2
     bounds = [len(ev) * k // n_parts for k in range(n_parts + 1)]
     parts = []
@@ -372,8 +378,6 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     axis_sigma = max(SIGMA_SCALE_AXIS * angle, SIGMA_FLOOR_DEG)
     # a rate of one turn per image period, which the window holds several times over, is measured
     # without the lag's bias, more finely
-    omega = float(np.linalg.norm(whole.w_rad_s))
-    window_s = float(ev.tau_s[0] - ev.tau_s[-1])
     on_period = window_s >= PERIOD_SIGMA_MIN_PERIODS * whole.period_s and math.isclose(
         omega * whole.period_s, 2 * np.pi, rel_tol=1e-9)
     lag = 0.0 if on_period else LAG_SIGMA_SCALE * rate_bias_pct(bursts, whole.w_rad_s, window_s)
@@ -384,7 +388,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     # 70 % of the time, those above 0.7 always (squaring puts 0.71 at 0.5)
     agree = float(np.clip((TRUST_WORST_ZERO - worst) / (TRUST_WORST_ZERO - TRUST_WORST_FULL), 0.0, 1.0))
     # an answer turning more than once per period of the image contradicts it (the image would repeat sooner)
-    too_fast = float(np.linalg.norm(whole.w_rad_s)) * whole.period_s > 2 * np.pi * CHECK_RATIO
+    too_fast = omega * whole.period_s > 2 * np.pi * CHECK_RATIO
     confidence = (whole.confidence * agree * float(np.clip(1.75 - spread, 0.0, 1.0))
                   * (0.5 if n_parts == 4 and found < QUARTER_QUORUM else 1.0) * (0.5 if too_fast else 1.0)) ** 2
     return replace(whole, confidence=confidence, axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma,
