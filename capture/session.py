@@ -1087,25 +1087,25 @@ class Session:
         i0, i1, _ = slice(i0, i1).indices(n)
         i1 = max(i0, i1)
         arr, codec = self._array(name, column, i1)
+        rows = arr.chunks[0]
         try:
             if codec is not None and step is None and arr.ndim == 1:
                 return codec.read(i0, i1)
             return arr[i0:i1:step]
-        except _BadChunk as bad:
-            rows = arr.chunks[0]
-            raise SessionError(f"{self.path}: damaged session: {name}/{column} rows {bad.index * rows}.."
-                               f"{min((bad.index + 1) * rows, arr.shape[0]) - 1} cannot be read "
-                               f"({_reason(bad.__cause__)})") from bad.__cause__
+        except _BadChunk as bad:  # the codec names its chunk
+            cause, chunk = bad.__cause__, bad.index
         except Exception as exc:
-            rows = arr.chunks[0]
+            cause, chunk = exc, None
             for c in range(i0 // rows, -(-i1 // rows)):  # find the first bad chunk
                 try:
                     arr[c * rows:min((c + 1) * rows, arr.shape[0])]
                 except Exception as bad:
-                    exc, i0, i1 = bad, c * rows, min((c + 1) * rows, arr.shape[0])
+                    cause, chunk = bad, c
                     break
-            raise SessionError(f"{self.path}: damaged session: {name}/{column} rows {i0}..{i1 - 1} "
-                               f"cannot be read ({_reason(exc)})") from exc
+        if chunk is not None:
+            i0, i1 = chunk * rows, min((chunk + 1) * rows, arr.shape[0])
+        raise SessionError(f"{self.path}: damaged session: {name}/{column} rows {i0}..{i1 - 1} "
+                           f"cannot be read ({_reason(cause)})") from cause
 
     @property
     def n_events(self) -> int:
