@@ -45,12 +45,36 @@ def _pseudo_angle(dx, dy):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
+def _sectors(x, y, cx, cy, n_sectors):
+    """Sector ``floor((atan2(y - cy, x - cx) + pi) n_sectors / 2 pi) mod n_sectors`` of each event, exact on
+    the boundaries at multiples of pi/4 (an event straight left of the centre is in sector 0, not
+    n - 1), elsewhere up to rounding: (N,) int64 of ``x, y`` (N,) float64 px."""
+    # the sectors' first directions as pseudo-angles (exact at the quadrants), and 4 after the last
+    bound = np.empty(n_sectors + 1)
+    for j in range(n_sectors):
+        q, rem = divmod(4 * j, n_sectors)
+        a = 0.5 * math.pi * rem / n_sectors
+        bound[j] = q + math.sin(a) / (math.sin(a) + math.cos(a))
+    bound[n_sectors] = np.inf  # (d may round to 4.0 just below straight left)
+    per_quadrant = n_sectors / 4.0
+    out = np.empty(len(x), np.int64)
+    for i in range(len(x)):
+        d = _pseudo_angle(cx - x[i], cy - y[i])  # the angle + pi
+        t = d * per_quadrant
+        s = min(np.int64(t), n_sectors - 1) if t > 0.0 else 0  # within one of the right sector (0: NaN)
+        while bound[s + 1] <= d:
+            s += 1
+        while s > 0 and bound[s] > d:
+            s -= 1
+        out[i] = s
+    return out
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
 def sector_tops(x, y, cx, cy, n_sectors, k, depth):
     """Per angular sector around ``(cx, cy)``: its events, and its ``k``-th and ``depth``-th outermost.
 
-    Sector of an event: ``floor((atan2(y - cy, x - cx) + pi) n_sectors / 2 pi) mod n_sectors``, exact on
-    the boundaries at multiples of pi/4 (an event straight left of the centre is in sector 0, not
-    n - 1), elsewhere up to rounding.
+    Sectors as in :func:`_sectors`.
 
     Parameters
     ----------
@@ -67,25 +91,12 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
     counts = np.zeros(n_sectors, np.int64)
     top_rho2 = np.full((n_sectors, depth), -1.0)   # descending
     top_idx = np.full((n_sectors, depth), -1, np.int64)
-    # the sectors' first directions as pseudo-angles (exact at the quadrants), and 4 after the last
-    bound = np.empty(n_sectors + 1)
-    for j in range(n_sectors):
-        q, rem = divmod(4 * j, n_sectors)
-        a = 0.5 * math.pi * rem / n_sectors
-        bound[j] = q + math.sin(a) / (math.sin(a) + math.cos(a))
-    bound[n_sectors] = np.inf  # (d may round to 4.0 just below straight left)
-    per_quadrant = n_sectors / 4.0
+    sec = _sectors(x, y, cx, cy, n_sectors)
     for i in range(len(x)):
         dx = x[i] - cx
         dy = y[i] - cy
         r2 = dx * dx + dy * dy
-        d = _pseudo_angle(-dx, -dy)  # the angle + pi
-        t = d * per_quadrant
-        s = min(np.int64(t), n_sectors - 1) if t > 0.0 else 0  # within one of the right sector (0: NaN)
-        while bound[s + 1] <= d:
-            s += 1
-        while s > 0 and bound[s] > d:
-            s -= 1
+        s = sec[i]
         counts[s] += 1
         if r2 <= top_rho2[s, depth - 1]:
             continue
@@ -247,6 +258,137 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
         if moved < 0.05:  # sectors would not change
             break
     return True, cx, cy, r, rms, n_in
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def limb_profile(x, y, cx, cy, r, n_sectors, inner_px, edge_px):
+    """Events per sector around ``(cx, cy)`` in two rings of the circle of radius ``r``: the ``inner``
+    ring ``[r - inner_px[0], r - inner_px[1])`` and the ``edge`` ring ``[r - edge_px, r + edge_px)``.
+
+    Returns (n_sectors, 2) float64: column 0 the inner ring's counts, column 1 the edge ring's.
+    Sectors as in :func:`_sectors`.
+    """
+    out = np.zeros((n_sectors, 2))
+    sec = _sectors(x, y, cx, cy, n_sectors)
+    in0, in1 = (r - inner_px[0]) ** 2, (r - inner_px[1]) ** 2
+    ed0, ed1 = max(r - edge_px, 0.0) ** 2, (r + edge_px) ** 2
+    for i in range(len(x)):
+        dx = x[i] - cx
+        dy = y[i] - cy
+        r2 = dx * dx + dy * dy
+        if in0 <= r2 < in1:
+            out[sec[i], 0] += 1.0
+        elif ed0 <= r2 < ed1:
+            out[sec[i], 1] += 1.0
+    return out
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
+    """The rim as a circle through the sharp edge of the sectors ``rim`` (bool, one per sector) only.
+
+    Each of ``n_iter`` rounds: in each ``rim`` sector around ``(cx, cy)`` holding at least
+    ``min_sector_events`` events, the boundary point is the mean of the events within ``band_px`` of its
+    ``k``-th outermost (in distance from the centre, and in direction); a geometric circle (Gauss-Newton
+    on the distances, from the last circle) is fitted through those points.
+
+    Returns
+    -------
+    found : bool, False where fewer than 4 sectors give a point or the fit diverges.
+    cx, cy, r : float, the circle, px.
+    rms : float, the points' RMS distance from it, px.
+    n_points : int, boundary points.
+    """
+    n_sectors = len(rim)
+    rms = math.inf
+    n_points = 0
+    bx = np.empty(n_sectors)
+    by = np.empty(n_sectors)
+    for _ in range(n_iter):
+        counts, kth, kth_rho2, deep_rho2 = sector_tops(x, y, cx, cy, n_sectors, k, k)
+        lo2 = np.full(n_sectors, np.inf)
+        hi2 = np.full(n_sectors, -1.0)
+        for s in range(n_sectors):
+            if rim[s] and counts[s] >= min_sector_events:
+                rk = math.sqrt(kth_rho2[s])
+                lo2[s] = max(rk - band_px, 0.0) ** 2
+                hi2[s] = (rk + band_px) ** 2
+        n = np.zeros(n_sectors)
+        sr = np.zeros(n_sectors)
+        su = np.zeros(n_sectors)
+        sv = np.zeros(n_sectors)
+        sec = _sectors(x, y, cx, cy, n_sectors)
+        for i in range(len(x)):
+            dx = x[i] - cx
+            dy = y[i] - cy
+            r2 = dx * dx + dy * dy
+            if r2 <= 0.0:
+                continue
+            s = sec[i]
+            if lo2[s] <= r2 <= hi2[s]:
+                rho = math.sqrt(r2)
+                n[s] += 1.0
+                sr[s] += rho
+                su[s] += dx / rho
+                sv[s] += dy / rho
+        m = 0
+        for s in range(n_sectors):
+            if n[s] > 0.0:
+                norm = math.hypot(su[s], sv[s])
+                if norm <= 0.0:
+                    continue
+                rho = sr[s] / n[s]
+                bx[m] = cx + rho * su[s] / norm
+                by[m] = cy + rho * sv[s] / norm
+                m += 1
+        if m < 4:
+            return False, cx, cy, r, rms, 0
+        fcx, fcy, fr = cx, cy, r
+        for _ in range(6):  # Gauss-Newton on (cx, cy, r): residual d - r, Jacobian (-u, -v, -1)
+            a00 = a01 = a02 = a11 = a12 = a22 = g0 = g1 = g2 = 0.0
+            for j in range(m):
+                ux = bx[j] - fcx
+                uy = by[j] - fcy
+                d = math.hypot(ux, uy)
+                if d <= 0.0:
+                    return False, cx, cy, r, rms, 0
+                ux /= d
+                uy /= d
+                res = d - fr
+                a00 += ux * ux
+                a01 += ux * uy
+                a02 += ux
+                a11 += uy * uy
+                a12 += uy
+                a22 += 1.0
+                g0 += ux * res
+                g1 += uy * res
+                g2 += res
+            # solve A step = g (the normal equations of J^T J step = -J^T res with J = -(u, v, 1))
+            det = (a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02))
+            if abs(det) < 1e-9:
+                return False, cx, cy, r, rms, 0
+            s0 = (g0 * (a11 * a22 - a12 * a12) - a01 * (g1 * a22 - a12 * g2) + a02 * (g1 * a12 - a11 * g2)) / det
+            s1 = (a00 * (g1 * a22 - a12 * g2) - g0 * (a01 * a22 - a12 * a02) + a02 * (a01 * g2 - g1 * a02)) / det
+            s2 = (a00 * (a11 * g2 - g1 * a12) - a01 * (a01 * g2 - g1 * a02) + g0 * (a01 * a12 - a11 * a02)) / det
+            fcx += s0
+            fcy += s1
+            fr += s2
+            if abs(s0) + abs(s1) + abs(s2) < 1e-4:
+                break
+        if not (fr > 0.0) or not math.isfinite(fcx + fcy + fr):
+            return False, cx, cy, r, rms, 0
+        moved = math.hypot(fcx - cx, fcy - cy)
+        cx, cy, r = fcx, fcy, fr
+        ss = 0.0
+        for j in range(m):
+            e = math.hypot(bx[j] - cx, by[j] - cy) - r
+            ss += e * e
+        rms = math.sqrt(ss / m)
+        n_points = m
+        if moved < 0.05:
+            break
+    return True, cx, cy, r, rms, n_points
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -648,6 +790,8 @@ def load() -> None:
     block: a tracker made before a recording streams pays it before the stream.
     Once per process (a second thread asking meanwhile waits on Numba's lock)."""
     rim_fit(np.zeros(1), np.zeros(1), np.zeros(1, np.bool_), 0.0, 0.0, 12, 1, 2, 1, 1)
+    limb_profile(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 16, (4.0, 2.0), 1.0)
+    lit_rim_fit(np.zeros(1), np.zeros(1), np.zeros(16, np.bool_), 0.0, 0.0, 1.0, 3, 1.0, 8, 1)
     hot_update(np.zeros(1), 1.0, np.zeros(1, np.int32), np.zeros(0, np.int64), np.zeros(1, np.int64), 1,
                np.zeros(1, np.bool_), 1, 1, 1.0, 1.0)
     eye = np.eye(7)

@@ -50,6 +50,7 @@ from detect.frame_detector import FrameDetector
 from detect.flicker import FLICKER_SAMPLE_EVENTS, FLICKER_SAMPLE_US, FlickerFilter, find_flicker_hz, flicker_mask
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
+from detect.limb import LimbModel
 
 _MAX_FIT_EVENTS = 4000
 """Events per circle fit (an even subsample in time of the candidate's events)."""
@@ -263,6 +264,7 @@ class _Flight:
         self.near = np.zeros(0, np.intp)  # indices of this slice's events around the ball (its surround too)
         self.circle = (math.nan, math.nan, 0.0)  # predicted (cx, cy, r) px this slice
         self.lead_us: int | None = None  # time of the row before the first update (a long first window)
+        self.limb = LimbModel()  # the directions in which the ball shows a sharp rim
 
 
 class BallTracker:
@@ -558,7 +560,7 @@ class BallTracker:
             t, x, y = _kernels.kept_events(t, x, y, keep, self._hot_mask, self.width)
         self._search_slice(t, x, y, s0, s1)
 
-    def _fit(self, t, x, y, m, center0, velocity, r_range) -> CircleFit | None:
+    def _fit(self, t, x, y, m, center0, velocity, r_range, limb: LimbModel | None = None) -> CircleFit | None:
         """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s).
 
         Without ``center0`` (search), isolated events are dropped first and the
@@ -566,7 +568,8 @@ class BallTracker:
         prediction is small enough that noise hardly reaches it and the fit's
         k-th-outermost rule absorbs the few strays - unless the window is sparse
         (fewer than ``_SPARSE_FIT_EVENTS``: a dim ball, noise a large share), where
-        isolated events are dropped too.
+        isolated events are dropped too. With a flight's ``limb``, the fit is refined on the
+        directions where the ball shows a sharp rim, and a fit of at least ``min_score`` adds to it.
         """
         # even subsample in time; a search keeps more, for the density filter to see a big ball's
         # sparse disk as dense (fit_circle then takes _MAX_FIT_EVENTS of what is left)
@@ -585,7 +588,12 @@ class BallTracker:
             xc, yc, border = xc[good], yc[good], border[good]
         if center0 is None:
             center0 = (float(xc.mean()), float(yc.mean()))
-        return fit_circle(xc, yc, center0=center0, r_range=r_range, ignore=border)
+        fit = fit_circle(xc, yc, center0=center0, r_range=r_range, ignore=border)
+        if limb is not None and fit is not None:
+            fit = limb.refine(xc, yc, fit, r_range)
+            if fit.score >= self.min_score:
+                limb.observe(xc, yc, fit)
+        return fit
 
     def _candidates(self, x, y) -> list[tuple[tuple[int, int, int, int], bool]]:
         """Candidate boxes of a search window, each with whether it comes from the coarse map: from
@@ -653,7 +661,7 @@ class BallTracker:
         t, x, y, start = win
         xc, yc, ts, xs, ys = _kernels.moved_near(t, x, y, m, vx, vy, cx, cy, reach)
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
-        fit = self._fit(ts, xs, ys, m, (cx, cy), (vx, vy), r_rng) if len(ts) >= 12 else None
+        fit = self._fit(ts, xs, ys, m, (cx, cy), (vx, vy), r_rng, fl.limb) if len(ts) >= 12 else None
         if fit is not None and _in_clutter(fit, cx, cy, reach, xc, yc):
             fit = None
         if fit is None or fit.score < self.min_score:

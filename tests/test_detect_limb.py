@@ -1,0 +1,136 @@
+"""The unlit limb (#16): a ball whose rim fires on its lit side only is fitted on that side.
+
+Synthetic events first (a sharp ring on the lit directions, shading that stops inside the rim on
+the others; a textured disc), then the tracker on a simulated plain ball whose shaded limb is as
+bright as the background.
+"""
+
+import numpy as np
+import pytest
+
+import sim
+from detect import _kernels, track_ball
+from detect.event_detector import fit_circle
+from detect.limb import N_SECTORS, LimbModel, sharp_directions
+
+CX, CY, R = 60.0, 50.0, 25.0
+
+
+def _direction_sector(a_rad):
+    """Sector (of N_SECTORS) of the direction ``a_rad`` (atan2 convention, image y down)."""
+    return (np.floor((a_rad + np.pi) * N_SECTORS / (2 * np.pi)).astype(int)) % N_SECTORS
+
+
+def _half_lit(rng, n=1500, lit_from=-2.6, lit_to=0.6):
+    """Events of a ball lit on directions ``lit_from .. lit_to`` (rad): there a ring 0.3 px wide at the
+    rim (plus shading inside it), elsewhere only shading that ends 1.5 px inside the rim."""
+    a = rng.uniform(-np.pi, np.pi, n)
+    lit = (a >= lit_from) & (a <= lit_to)
+    ring = lit & (rng.random(n) < 0.6)
+    rho = np.where(ring, R + rng.normal(0.0, 0.3, n), (R - 1.5) - rng.uniform(0.0, 6.0, n) ** 1.3)
+    return CX + rho * np.cos(a), CY + rho * np.sin(a), lit
+
+
+def _error(fit):
+    return float(np.hypot(fit.cx - CX, fit.cy - CY))
+
+
+def test_lit_rim_fit_uses_the_sharp_directions_only():
+    rng = np.random.default_rng(0)
+    x, y, _ = _half_lit(rng)
+    centres = np.arange(N_SECTORS) * (2 * np.pi / N_SECTORS) - np.pi + np.pi / N_SECTORS
+    lit_dirs = (centres >= -2.6 + 0.2) & (centres <= 0.6 - 0.2)
+    start = fit_circle(x, y, center0=(CX + 1, CY - 1))
+    found, cx, cy, r, rms, n = _kernels.lit_rim_fit(x, y, lit_dirs, start.cx, start.cy, start.r, 3, 1.0, 8, 4)
+    assert found and n >= 4
+    assert np.hypot(cx - CX, cy - CY) < 0.15 and abs(r - R) < 0.15
+    # every direction: the shading's edge pulls the circle towards the lit side
+    found, cx, cy, r, *_ = _kernels.lit_rim_fit(x, y, np.ones(N_SECTORS, bool), start.cx, start.cy, start.r, 3, 1.0,
+                                                8, 4)
+    assert found and np.hypot(cx - CX, cy - CY) > 0.5
+
+
+def test_a_flight_learns_its_lit_directions_and_its_fits_move_to_the_rim():
+    rng = np.random.default_rng(1)
+    limb = LimbModel()
+    for _ in range(8):
+        x, y, _ = _half_lit(rng)
+        fit = fit_circle(x, y, center0=(CX, CY))
+        limb.observe(x, y, limb.refine(x, y, fit, (5.0, 60.0)))
+    sharp, unlit = sharp_directions(limb.profile)
+    assert np.array_equal(limb.rim, sharp)
+    x, y, lit = _half_lit(rng)
+    # the directions well inside the lit arc are sharp, those well inside the dark one are not
+    centres = np.arange(N_SECTORS) * (2 * np.pi / N_SECTORS) - np.pi + np.pi / N_SECTORS
+    assert sharp[(centres > -2.3) & (centres < 0.3)].all()
+    assert not sharp[(centres > 0.9) | (centres < -2.9)].any() and unlit[(centres > 0.9) | (centres < -2.9)].all()
+    fit = fit_circle(x, y, center0=(CX, CY))
+    refined = limb.refine(x, y, fit, (5.0, 60.0))
+    assert _error(fit) > 0.6 and _error(refined) < 0.25 and abs(refined.r - R) < 0.25
+    assert refined.score == fit.score and refined.coverage == fit.coverage
+
+
+def test_a_ball_firing_over_its_disc_or_its_whole_rim_is_left_as_it_is():
+    rng = np.random.default_rng(2)
+    for kind in ("disc", "ring"):
+        limb = LimbModel()
+        for _ in range(8):
+            a = rng.uniform(-np.pi, np.pi, 2000)
+            rho = R * np.sqrt(rng.random(2000)) if kind == "disc" else R + rng.normal(0.0, 0.3, 2000)
+            x, y = CX + rho * np.cos(a), CY + rho * np.sin(a)
+            fit = fit_circle(x, y, center0=(CX + 1, CY))
+            assert limb.refine(x, y, fit, (5.0, 60.0)) is fit
+            limb.observe(x, y, fit)
+
+
+def test_a_narrow_lit_arc_is_not_refitted():
+    """Sharp directions over less than half the circle leave the circle ill-defined: no refit."""
+    rng = np.random.default_rng(3)
+    limb = LimbModel()
+    for _ in range(8):
+        x, y, _ = _half_lit(rng, lit_from=-2.0, lit_to=-0.6)
+        fit = fit_circle(x, y, center0=(CX, CY))
+        assert limb.refine(x, y, fit, (5.0, 60.0)) is fit
+        limb.observe(x, y, fit)
+    assert sharp_directions(limb.profile)[0].any() and limb.rim is None
+
+
+def test_a_ball_whose_unsharp_side_fires_out_to_its_rim_is_not_refitted():
+    """A textured ball with a sharper rim on one side: the lit arc is found, but no side's edge lies
+    inside the rim, so no refit is taken."""
+    rng = np.random.default_rng(5)
+    limb = LimbModel()
+    for _ in range(8):
+        a = rng.uniform(-np.pi, np.pi, 3000)
+        ring = (a > -2.6) & (a < 0.6) & (rng.random(3000) < 0.5)
+        rho = np.where(ring, R + rng.normal(0.0, 0.3, 3000), R * np.sqrt(rng.random(3000)))
+        x, y = CX + rho * np.cos(a), CY + rho * np.sin(a)
+        fit = fit_circle(x, y, center0=(CX + 1, CY))
+        assert limb.refine(x, y, fit, (5.0, 60.0)) is fit
+        limb.observe(x, y, fit)
+    assert limb.rim is not None
+
+
+@pytest.fixture(scope="module")
+def dark_limb_flight():
+    """A plain ball crossing a 160x120 realistic sensor, lit from the upper left in front of a background
+    as bright as its unlit limb (which then fires no rim events)."""
+    return sim.flight("plain", rps=0.0, radius_px=24.0, width=160, height=120, duration_s=0.12,
+                      start_px=(30.0, 60.0), velocity_px_s=(800.0, 0.0), gravity_px_s2=0.0, background="plain",
+                      sensor="realistic", distractors=(), noise_rate_hz=0.0, hot_pixels=0, seed=4)
+
+
+def _centre_errors(rec, track):
+    truth = rec.truth_track(visible_only=False)
+    cx, cy = (np.interp(track.t_us, truth.t_us, getattr(truth, k)) for k in ("cx", "cy"))
+    return np.hypot(track.cx - cx, track.cy - cy)
+
+
+def test_the_tracker_fits_a_ball_with_an_unlit_limb_on_its_lit_side(dark_limb_flight, monkeypatch):
+    rec = dark_limb_flight
+    with_limb = _centre_errors(rec, track_ball(rec.events, width=rec.width, height=rec.height))
+    monkeypatch.setattr(LimbModel, "refine", lambda self, x, y, fit, r_range: fit)
+    without = _centre_errors(rec, track_ball(rec.events, width=rec.width, height=rec.height))
+    assert len(with_limb) >= 0.8 * len(without) > 10
+    assert np.median(with_limb) < 0.6 * np.median(without)
+    assert np.median(with_limb) < 0.8
