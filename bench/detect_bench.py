@@ -2,10 +2,11 @@
 
 Usage::
 
-    PYTHONPATH=. python bench/detect_bench.py [--quick] [--rows NAME,...] [--held-out-only]
+    PYTHONPATH=. python bench/detect_bench.py [--quick] [--rows NAME,...] [--held-out-only] [--seeds 3-16]
 
 Every row is one kind of flight (``sim.flight``), run on *tuning* seeds (1, 2) and on
-*held-out* seeds (101, 102) that no threshold was tuned on; the two are printed apart.
+*held-out* seeds (101, 102) that no threshold was tuned on; the two are printed apart
+(``--seeds`` runs other seeds instead, pooled).
 The rows:
 
 * ``volley-*``: a textured volleyball crossing a 1280x720 or 640x480 court view with a
@@ -270,11 +271,22 @@ def print_row(label, p):
           flush=True)
 
 
+def _seeds(text: str) -> list[int]:
+    """Seeds from ``text``: comma-separated numbers and ranges ``a-b`` (inclusive)."""
+    out = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter flights")
     ap.add_argument("--rows", default=",".join(ROWS), help="comma-separated rows (default: all)")
     ap.add_argument("--held-out-only", action="store_true", help="skip the tuning seeds")
+    ap.add_argument("--seeds", default=None,
+                    help="other seeds instead of the tuning and held-out ones, e.g. 3-16 or 5,7 (printed as 'seeds')")
     ap.add_argument("--no-flicker-hz", action="store_true", help="do not tell the tracker the flicker frequency")
     ap.add_argument("--auto-flicker-hz", action="store_true",
                     help="on every row, let the tracker find the flicker frequency itself (flicker_hz='auto')")
@@ -284,7 +296,8 @@ def main(argv=None):
     print(f"{'row (seeds)':<28} {'in Mev/s':>8} {'recall':>7} {'c med':>6} {'c p95':>6} {'r med':>6} {'r p95':>6} "
           f"{'FU/s':>6} {'flts':>6} {'Mev/s':>6} {'xRT':>5}")
     totals = {}
-    for split, seeds in (("tune", TUNE_SEEDS), ("held-out", HELD_OUT_SEEDS)):
+    splits = (("tune", TUNE_SEEDS), ("held-out", HELD_OUT_SEEDS)) if args.seeds is None else (("seeds", _seeds(args.seeds)),)
+    for split, seeds in splits:
         if split == "tune" and args.held_out_only:
             continue
         allp = []

@@ -55,6 +55,10 @@ MIN_SECTOR_EVENTS = 8
 INSET_PX = 0.5
 RETRY_AFTER = 8
 INSET_WEIGHT = 0.3
+# a flight refitted within the last HOLD_FITS fits keeps its lit directions where its profile
+# briefly singles out none (a sparse window's lit arc shows gaps): a track alternating between
+# refits and fits leaning toward the light jitters by a pixel or more, and may be lost
+HOLD_FITS = 10
 
 
 def _longest_gap(sharp: np.ndarray) -> int:
@@ -87,8 +91,8 @@ class LimbModel:
 
     ``profile`` (N_SECTORS, 2): per direction (sector ``k`` of ``atan2(dy, dx) + pi``, image y down),
     the recent fits' mean counts of events 2-4 px inside the fitted rim and within 1 px of it.
-    ``rim``: the sharp directions, where the profile singles out a lit arc after ``MIN_FITS`` fits;
-    else None.
+    ``rim``: the sharp directions, where the profile singles out a lit arc after ``MIN_FITS`` fits
+    (or did within ``HOLD_FITS`` of a refit taken); else None.
     """
 
     def __init__(self):
@@ -97,6 +101,7 @@ class LimbModel:
         self.rim: np.ndarray | None = None
         self.wait = 0  # fits to leave as they are before the next refit
         self.inset_px = np.nan  # the refits' mean depth of the unlit directions' edge inside them
+        self.since_refit = HOLD_FITS + 1  # fits since the last refit taken
 
     def refine(self, x: np.ndarray, y: np.ndarray, fit, r_range: tuple[float, float]):
         """``fit`` (a :class:`~detect.event_detector.CircleFit` of events ``(x, y)``, px, float64) refitted
@@ -106,22 +111,33 @@ class LimbModel:
         The refit keeps ``fit``'s score and coverage; its ``sigma_px`` is that of its fewer points.
         It is not taken where its radius leaves ``r_range`` (px) or its centre moves more than 0.1 of it.
         """
-        if self.rim is None or self.wait > 0:
-            self.wait = max(self.wait - 1, 0)
+        self.since_refit += 1
+        if self.wait > 0:
+            self.wait -= 1
             return fit
+        refit = self._refit(x, y, fit, r_range) if self.rim is not None else None
+        if refit is None:
+            return fit
+        self.since_refit = 0
+        return refit
+
+    def _refit(self, x, y, fit, r_range):
+        """The refit of :meth:`refine`, or None where there is none; where the unlit directions' edge is not
+        (on average over the refits) ``INSET_PX`` inside it, the next ``RETRY_AFTER`` fits are not tried."""
         found, cx, cy, r, rms, n = lit_rim_fit(x, y, self.rim, fit.cx, fit.cy, fit.r, K_OUTER, BAND_PX,
                                                MIN_SECTOR_EVENTS, 4)
         if not found or not r_range[0] <= r <= r_range[1] or np.hypot(cx - fit.cx, cy - fit.cy) > 0.1 * fit.r:
-            return fit
+            return None
         counts, _, kth_rho2, _ = sector_tops(x, y, cx, cy, N_SECTORS, K_OUTER, K_OUTER)
         unlit = ~self.rim & (counts >= MIN_SECTOR_EVENTS)
         if not unlit.any():
-            return fit
+            return None
         inset = float(np.median(r - np.sqrt(kth_rho2[unlit])))
-        self.inset_px = inset if np.isnan(self.inset_px) else (1.0 - INSET_WEIGHT) * self.inset_px + INSET_WEIGHT * inset
+        w = 1.0 if np.isnan(self.inset_px) else INSET_WEIGHT
+        self.inset_px = (1.0 - w) * np.nan_to_num(self.inset_px) + w * inset
         if self.inset_px < INSET_PX:
             self.wait = RETRY_AFTER
-            return fit
+            return None
         return replace(fit, cx=float(cx), cy=float(cy), r=float(r), sigma_px=float(np.sqrt(2.0 / n) * max(rms, 0.3)))
 
     def observe(self, x: np.ndarray, y: np.ndarray, fit) -> None:
@@ -131,4 +147,6 @@ class LimbModel:
         new = step * limb_profile(xs, ys, fit.cx, fit.cy, fit.r, N_SECTORS, INNER_PX, EDGE_PX)
         self.n_fits += 1
         self.profile = new if self.profile is None else (1.0 - UPDATE_WEIGHT) * self.profile + UPDATE_WEIGHT * new
-        self.rim = _rim_directions(self.profile) if self.n_fits >= MIN_FITS else None
+        rim = _rim_directions(self.profile) if self.n_fits >= MIN_FITS else None
+        if rim is not None or self.since_refit > HOLD_FITS:
+            self.rim = rim

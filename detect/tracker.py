@@ -167,6 +167,12 @@ def _continues(chain, m: int, fit: CircleFit, width: int, height: int) -> bool:
         return False
     dt_s = (m - tm) * 1e-6
     px, py = tf.cx + tv[0] * dt_s, tf.cy + tv[1] * dt_s
+    if len(chain) == 1:
+        # a first detection's velocity is its window's centroid's, wrong where the events are few
+        # (a slow ball's shading drifts): the ball is anywhere from where it was to where that predicts
+        step = np.array([px - tf.cx, py - tf.cy])
+        along = np.clip(np.dot([fit.cx - tf.cx, fit.cy - tf.cy], step) / max(float(step @ step), 1e-12), 0.0, 1.0)
+        px, py = tf.cx + along * step[0], tf.cy + along * step[1]
     if np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0:
         return True
     depth, depth0 = _depth_px(fit, width, height), _depth_px(tf, width, height)

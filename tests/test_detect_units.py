@@ -13,7 +13,7 @@ from detect import BallTracker, track_ball
 from detect.event_detector import density_filter, find_candidates, fit_circle
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
-from detect.tracker import _box_pixels, _surrounded
+from detect.tracker import _box_pixels, _continues, _surrounded
 from detect.event_detector import CircleFit
 
 W, H = 320, 240
@@ -601,6 +601,22 @@ def test_sparse_ball_is_tracked_by_joining_slices():
     assert len(track_ball(ev, width=W, height=H, r_range=(5, 40), max_window_us=2000)) == 0
     with pytest.raises(ValueError, match="max_window_us"):
         BallTracker(W, H, max_window_us=3000)
+
+
+def test_a_first_detection_is_continued_from_where_it_was_to_where_its_velocity_predicts():
+    # a first detection's velocity is its window's centroid's, which a slow, sparse ball's shading
+    # can throw far off: the next detection continues it anywhere along that step (within the
+    # usual 0.3 r + 3 px); a longer chain's velocity comes from its displacement and holds
+    from dataclasses import replace
+    f0 = CircleFit(cx=40.0, cy=60.0, r=16.0, score=0.5, sigma_px=0.2, n_events=300, coverage=0.6)
+    at = lambda cx, cy: replace(f0, cx=cx, cy=cy)  # noqa: E731
+    first = [(20_000, f0, (240.0, -20.0))]  # 9.6 px in the next 40 ms
+    for cx, cy in ((40.5, 60.3), (45.0, 59.5), (49.6, 59.2)):  # unmoved, half way, as predicted
+        assert _continues(first, 60_000, at(cx, cy), 128, 128)
+    assert not _continues(first, 60_000, at(30.0, 60.0), 128, 128)  # the other way
+    assert not _continues(first, 60_000, at(45.0, 70.0), 128, 128)  # off the step
+    assert _continues([(60_000, at(41.0, 60.0), (250.0, 0.0))], 100_000, at(41.5, 60.0), 128, 128)
+    assert not _continues([*first, (60_000, at(41.0, 60.0), (250.0, 0.0))], 100_000, at(41.5, 60.0), 128, 128)
 
 
 def test_a_still_ball_whose_lit_side_turns_is_found_in_long_windows():
