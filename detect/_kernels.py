@@ -153,6 +153,37 @@ def _kasa(x, y, keep):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
+def _dilution(bx, by, keep, cx, cy):
+    """How the centre's error of a geometric circle fit grows with the points' spread round the circle:
+    ``sqrt((C_xx + C_yy) / 2)`` of ``C = (J^T J)^-1`` (J's rows ``(u_x, u_y, 1)``, ``u`` the unit vector
+    from ``(cx, cy)`` to each ``keep`` point ``(bx, by)``); ``sqrt(2 / n)`` for n points spread evenly
+    round the whole circle, more for a shorter arc (``inf`` where the fit is singular)."""
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for j in range(len(bx)):
+        if not keep[j]:
+            continue
+        ux = bx[j] - cx
+        uy = by[j] - cy
+        d = math.hypot(ux, uy)
+        if d <= 0.0:
+            continue
+        ux /= d
+        uy /= d
+        a00 += ux * ux
+        a01 += ux * uy
+        a02 += ux
+        a11 += uy * uy
+        a12 += uy
+        a22 += 1.0
+    det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+    if det <= 1e-12:
+        return math.inf
+    inv00 = (a11 * a22 - a12 * a12) / det
+    inv11 = (a00 * a22 - a02 * a02) / det
+    return math.sqrt(0.5 * (inv00 + inv11))
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
 def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n_iter):
     """The rim as a circle through each sector's boundary point, fitted again around each new centre.
 
@@ -180,10 +211,12 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
     cx, cy, r : float, the circle, px.
     rms : float, the kept boundary points' RMS distance from it, px.
     n_in : int, boundary points kept.
+    dilution : float, the centre's error per px of ``rms`` (:func:`_dilution`).
     """
     r = math.nan
     rms = math.inf
     n_in = 0
+    dilution = math.inf
     need = max(min_sector_events, k + gap_events)
     bx = np.empty(n_sectors)
     by = np.empty(n_sectors)
@@ -209,14 +242,14 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
             by[m] = cy + (y[i] - cy) * scale
             m += 1
         if n_ok < 5:
-            return False, cx, cy, r, rms, n_in
+            return False, cx, cy, r, rms, n_in, dilution
         for j in range(m):
             keep[j] = True
         n_keep = m
         fcx = fcy = fr = 0.0
         for _ in range(3):
             if n_keep < 5:
-                return False, cx, cy, r, rms, n_in
+                return False, cx, cy, r, rms, n_in, dilution
             fcx, fcy, fr = _kasa(bx[:m], by[:m], keep[:m])
             for j in range(m):
                 res[j] = math.hypot(bx[j] - fcx, by[j] - fcy) - fr
@@ -246,7 +279,7 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
                 keep[j] = new_keep[j]
             n_keep = n_new
         if n_keep < 5:
-            return False, cx, cy, r, rms, n_in
+            return False, cx, cy, r, rms, n_in, dilution
         moved = math.hypot(fcx - cx, fcy - cy)
         cx, cy, r = fcx, fcy, fr
         ss = 0.0
@@ -255,9 +288,10 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
                 ss += res[j] * res[j]
         rms = math.sqrt(ss / n_keep)
         n_in = n_keep
+        dilution = _dilution(bx[:m], by[:m], keep[:m], cx, cy)
         if moved < 0.05:  # sectors would not change
             break
-    return True, cx, cy, r, rms, n_in
+    return True, cx, cy, r, rms, n_in, dilution
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -297,11 +331,11 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
     found : bool, False where fewer than 4 sectors give a point or the fit diverges.
     cx, cy, r : float, the circle, px.
     rms : float, the points' RMS distance from it, px.
-    n_points : int, boundary points.
+    dilution : float, the centre's error per px of ``rms`` (:func:`_dilution`).
     """
     n_sectors = len(rim)
     rms = math.inf
-    n_points = 0
+    dilution = math.inf
     bx = np.empty(n_sectors)
     by = np.empty(n_sectors)
     for _ in range(n_iter):
@@ -342,7 +376,7 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
                 by[m] = cy + rho * sv[s] / norm
                 m += 1
         if m < 4:
-            return False, cx, cy, r, rms, 0
+            return False, cx, cy, r, rms, math.inf
         fcx, fcy, fr = cx, cy, r
         for _ in range(6):  # Gauss-Newton on (cx, cy, r): residual d - r, Jacobian (-u, -v, -1)
             a00 = a01 = a02 = a11 = a12 = a22 = g0 = g1 = g2 = 0.0
@@ -351,7 +385,7 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
                 uy = by[j] - fcy
                 d = math.hypot(ux, uy)
                 if d <= 0.0:
-                    return False, cx, cy, r, rms, 0
+                    return False, cx, cy, r, rms, math.inf
                 ux /= d
                 uy /= d
                 res = d - fr
@@ -367,7 +401,7 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
             # solve A step = g (the normal equations of J^T J step = -J^T res with J = -(u, v, 1))
             det = (a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02))
             if abs(det) < 1e-9:
-                return False, cx, cy, r, rms, 0
+                return False, cx, cy, r, rms, math.inf
             s0 = (g0 * (a11 * a22 - a12 * a12) - a01 * (g1 * a22 - a12 * g2) + a02 * (g1 * a12 - a11 * g2)) / det
             s1 = (a00 * (g1 * a22 - a12 * g2) - g0 * (a01 * a22 - a12 * a02) + a02 * (a01 * g2 - g1 * a02)) / det
             s2 = (a00 * (a11 * g2 - g1 * a12) - a01 * (a01 * g2 - g1 * a02) + g0 * (a01 * a12 - a11 * a02)) / det
@@ -377,7 +411,7 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
             if abs(s0) + abs(s1) + abs(s2) < 1e-4:
                 break
         if not (fr > 0.0) or not math.isfinite(fcx + fcy + fr):
-            return False, cx, cy, r, rms, 0
+            return False, cx, cy, r, rms, math.inf
         moved = math.hypot(fcx - cx, fcy - cy)
         cx, cy, r = fcx, fcy, fr
         ss = 0.0
@@ -385,10 +419,10 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
             e = math.hypot(bx[j] - cx, by[j] - cy) - r
             ss += e * e
         rms = math.sqrt(ss / m)
-        n_points = m
+        dilution = _dilution(bx[:m], by[:m], np.ones(m, np.bool_), cx, cy)
         if moved < 0.05:
             break
-    return True, cx, cy, r, rms, n_points
+    return True, cx, cy, r, rms, dilution
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)

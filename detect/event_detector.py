@@ -126,7 +126,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         x, y = x[sub], y[sub]
         ignore = None if ignore is None else ignore[sub]
     ignore = np.zeros(len(x), np.bool_) if ignore is None else np.ascontiguousarray(ignore, np.bool_)
-    found, cx, cy, r, rms, n_in = rim_fit(x, y, ignore, float(center0[0]), float(center0[1]), n_sectors, k_outer,
+    found, cx, cy, r, rms, n_in, dilution = rim_fit(x, y, ignore, float(center0[0]), float(center0[1]), n_sectors, k_outer,
                                           gap_events, min_sector_events, n_iter)
     if not found:
         return None
@@ -137,7 +137,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     coverage = n_in / n_sectors
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
-    sigma_px = float(np.sqrt(2.0 / n_in) * max(rms, 0.3))
+    sigma_px = float(min(dilution, 10.0) * max(rms, 0.3))  # dilution sqrt(2 / n_in) round the whole rim
     return CircleFit(cx, cy, r, float(score), sigma_px, n, float(coverage))
 
 

@@ -108,7 +108,7 @@ class LimbModel:
         on the directions ``rim``, where the flight has them and the others' edge lies ``INSET_PX``
         inside the refit; else ``fit``.
 
-        The refit keeps ``fit``'s score and coverage; its ``sigma_px`` is that of its fewer points.
+        The refit keeps ``fit``'s score and coverage; its ``sigma_px`` is that of its points on their arc.
         It is not taken where its radius leaves ``r_range`` (px) or its centre moves more than 0.1 of it.
         """
         self.since_refit += 1
@@ -124,7 +124,7 @@ class LimbModel:
     def _refit(self, x, y, fit, r_range):
         """The refit of :meth:`refine`, or None where there is none; where the unlit directions' edge is not
         (on average over the refits) ``INSET_PX`` inside it, the next ``RETRY_AFTER`` fits are not tried."""
-        found, cx, cy, r, rms, n = lit_rim_fit(x, y, self.rim, fit.cx, fit.cy, fit.r, K_OUTER, BAND_PX,
+        found, cx, cy, r, rms, dilution = lit_rim_fit(x, y, self.rim, fit.cx, fit.cy, fit.r, K_OUTER, BAND_PX,
                                                MIN_SECTOR_EVENTS, 4)
         if not found or not r_range[0] <= r <= r_range[1] or np.hypot(cx - fit.cx, cy - fit.cy) > 0.1 * fit.r:
             return None
@@ -138,7 +138,7 @@ class LimbModel:
         if self.inset_px < INSET_PX:
             self.wait = RETRY_AFTER
             return None
-        return replace(fit, cx=float(cx), cy=float(cy), r=float(r), sigma_px=float(np.sqrt(2.0 / n) * max(rms, 0.3)))
+        return replace(fit, cx=float(cx), cy=float(cy), r=float(r), sigma_px=float(min(dilution, 10.0) * max(rms, 0.3)))
 
     def observe(self, x: np.ndarray, y: np.ndarray, fit) -> None:
         """Add the profile of events ``(x, y)`` (px, float64) around ``fit`` (a fit of the ball)."""
