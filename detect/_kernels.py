@@ -153,34 +153,58 @@ def _kasa(x, y, keep):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def _dilution(bx, by, keep, cx, cy):
-    """How the centre's error of a geometric circle fit grows with the points' spread round the circle:
-    ``sqrt((C_xx + C_yy) / 2)`` of ``C = (J^T J)^-1`` (J's rows ``(u_x, u_y, 1)``, ``u`` the unit vector
-    from ``(cx, cy)`` to each ``keep`` point ``(bx, by)``); ``sqrt(2 / n)`` for n points spread evenly
-    round the whole circle, more for a shorter arc (``inf`` where the fit is singular)."""
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+def _circle_normal(bx, by, keep, cx, cy, r):
+    """Normal equations of a geometric circle fit at ``(cx, cy, r)`` through the ``keep`` points
+    ``(bx, by)``: ``(J^T J, J^T e, ok)`` with J's rows ``(u_x, u_y, 1)`` (``u`` the unit vector from the
+    centre to a point) and ``e`` the points' distances from the circle; ``ok`` False where a point sits
+    on the centre."""
+    a = np.zeros((3, 3))
+    g = np.zeros(3)
+    u = np.ones(3)
     for j in range(len(bx)):
         if not keep[j]:
             continue
-        ux = bx[j] - cx
-        uy = by[j] - cy
-        d = math.hypot(ux, uy)
+        dx = bx[j] - cx
+        dy = by[j] - cy
+        d = math.hypot(dx, dy)
         if d <= 0.0:
-            continue
-        ux /= d
-        uy /= d
-        a00 += ux * ux
-        a01 += ux * uy
-        a02 += ux
-        a11 += uy * uy
-        a12 += uy
-        a22 += 1.0
-    det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
-    if det <= 1e-12:
+            return a, g, False
+        u[0] = dx / d
+        u[1] = dy / d
+        for p in range(3):
+            g[p] += u[p] * (d - r)
+            for q in range(3):
+                a[p, q] += u[p] * u[q]
+    return a, g, True
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _solve3(a, b):
+    """``(ok, x)`` of ``a x = b`` for a 3x3 ``a`` (Cramer's rule; ok False where ``a`` is near singular)."""
+    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    x = np.zeros(3)
+    if abs(det) < 1e-9:
+        return False, x
+    for c in range(3):
+        m = a.copy()
+        m[:, c] = b
+        x[c] = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+                + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])) / det
+    return True, x
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _dilution(bx, by, keep, cx, cy):
+    """How the centre's error of a geometric circle fit grows with the points' spread round the circle:
+    ``sqrt((C_xx + C_yy) / 2)`` of ``C = (J^T J)^-1`` (:func:`_circle_normal`); ``sqrt(2 / n)`` for n
+    points spread evenly round the whole circle, more for a shorter arc (``inf`` where it is singular)."""
+    a, _, ok = _circle_normal(bx, by, keep, cx, cy, 0.0)
+    ok_x, cx_col = _solve3(a, np.array([1.0, 0.0, 0.0]))
+    ok_y, cy_col = _solve3(a, np.array([0.0, 1.0, 0.0]))
+    if not (ok and ok_x and ok_y) or cx_col[0] + cy_col[1] <= 0.0:
         return math.inf
-    inv00 = (a11 * a22 - a12 * a12) / det
-    inv11 = (a00 * a22 - a02 * a02) / det
-    return math.sqrt(0.5 * (inv00 + inv11))
+    return math.sqrt(0.5 * (cx_col[0] + cy_col[1]))
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -378,37 +402,16 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
         if m < 4:
             return False, cx, cy, r, rms, math.inf
         fcx, fcy, fr = cx, cy, r
-        for _ in range(6):  # Gauss-Newton on (cx, cy, r): residual d - r, Jacobian (-u, -v, -1)
-            a00 = a01 = a02 = a11 = a12 = a22 = g0 = g1 = g2 = 0.0
-            for j in range(m):
-                ux = bx[j] - fcx
-                uy = by[j] - fcy
-                d = math.hypot(ux, uy)
-                if d <= 0.0:
-                    return False, cx, cy, r, rms, math.inf
-                ux /= d
-                uy /= d
-                res = d - fr
-                a00 += ux * ux
-                a01 += ux * uy
-                a02 += ux
-                a11 += uy * uy
-                a12 += uy
-                a22 += 1.0
-                g0 += ux * res
-                g1 += uy * res
-                g2 += res
-            # solve A step = g (the normal equations of J^T J step = -J^T res with J = -(u, v, 1))
-            det = (a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02))
-            if abs(det) < 1e-9:
+        everything = np.ones(m, np.bool_)
+        for _ in range(6):  # Gauss-Newton on (cx, cy, r): residual d - r, Jacobian -(u_x, u_y, 1)
+            a, g, ok = _circle_normal(bx[:m], by[:m], everything, fcx, fcy, fr)
+            ok_step, step = _solve3(a, g)
+            if not (ok and ok_step):
                 return False, cx, cy, r, rms, math.inf
-            s0 = (g0 * (a11 * a22 - a12 * a12) - a01 * (g1 * a22 - a12 * g2) + a02 * (g1 * a12 - a11 * g2)) / det
-            s1 = (a00 * (g1 * a22 - a12 * g2) - g0 * (a01 * a22 - a12 * a02) + a02 * (a01 * g2 - g1 * a02)) / det
-            s2 = (a00 * (a11 * g2 - g1 * a12) - a01 * (a01 * g2 - g1 * a02) + g0 * (a01 * a12 - a11 * a02)) / det
-            fcx += s0
-            fcy += s1
-            fr += s2
-            if abs(s0) + abs(s1) + abs(s2) < 1e-4:
+            fcx += step[0]
+            fcy += step[1]
+            fr += step[2]
+            if abs(step[0]) + abs(step[1]) + abs(step[2]) < 1e-4:
                 break
         if not (fr > 0.0) or not math.isfinite(fcx + fcy + fr):
             return False, cx, cy, r, rms, math.inf
@@ -419,7 +422,7 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
             e = math.hypot(bx[j] - cx, by[j] - cy) - r
             ss += e * e
         rms = math.sqrt(ss / m)
-        dilution = _dilution(bx[:m], by[:m], np.ones(m, np.bool_), cx, cy)
+        dilution = _dilution(bx[:m], by[:m], everything, cx, cy)
         if moved < 0.05:
             break
     return True, cx, cy, r, rms, dilution

@@ -31,6 +31,16 @@ def _half_lit(rng, n=1500, lit_from=-2.6, lit_to=0.6):
     return CX + rho * np.cos(a), CY + rho * np.sin(a), lit
 
 
+def _flight_of_half_lit_windows(rng, n=8):
+    """A LimbModel that has seen ``n`` windows of a half-lit ball, each refined then observed."""
+    limb = LimbModel()
+    for _ in range(n):
+        x, y, _ = _half_lit(rng)
+        fit = fit_circle(x, y, center0=(CX, CY))
+        limb.observe(x, y, limb.refine(x, y, fit, (5.0, 60.0)))
+    return limb
+
+
 def _error(fit):
     return float(np.hypot(fit.cx - CX, fit.cy - CY))
 
@@ -53,11 +63,7 @@ def test_lit_rim_fit_uses_the_sharp_directions_only():
 
 def test_a_flight_learns_its_lit_directions_and_its_fits_move_to_the_rim():
     rng = np.random.default_rng(1)
-    limb = LimbModel()
-    for _ in range(8):
-        x, y, _ = _half_lit(rng)
-        fit = fit_circle(x, y, center0=(CX, CY))
-        limb.observe(x, y, limb.refine(x, y, fit, (5.0, 60.0)))
+    limb = _flight_of_half_lit_windows(rng)
     sharp, unlit = sharp_directions(limb.profile)
     assert np.array_equal(limb.rim, sharp)
     x, y, lit = _half_lit(rng)
@@ -143,11 +149,7 @@ def test_a_refitting_flight_keeps_its_lit_directions_while_its_profile_briefly_s
     not alternate between refits and fits leaning toward the light (which once lost the ball)."""
     import detect.limb as limb_mod
     rng = np.random.default_rng(6)
-    limb = LimbModel()
-    for _ in range(8):
-        x, y, _ = _half_lit(rng)
-        fit = fit_circle(x, y, center0=(CX, CY))
-        limb.observe(x, y, limb.refine(x, y, fit, (5.0, 60.0)))
+    limb = _flight_of_half_lit_windows(rng)
     lit = limb.rim.copy()
     monkeypatch.setattr(limb_mod, "_rim_directions", lambda profile: None)  # the profile shows none from now
     refits = []
