@@ -200,11 +200,12 @@ def _dilution(bx, by, keep, cx, cy):
     ``sqrt((C_xx + C_yy) / 2)`` of ``C = (J^T J)^-1`` (:func:`_circle_normal`); ``sqrt(2 / n)`` for n
     points spread evenly round the whole circle, more for a shorter arc (``inf`` where it is singular)."""
     a, _, ok = _circle_normal(bx, by, keep, cx, cy, 0.0)
-    ok_x, cx_col = _solve3(a, np.array([1.0, 0.0, 0.0]))
-    ok_y, cy_col = _solve3(a, np.array([0.0, 1.0, 0.0]))
-    if not (ok and ok_x and ok_y) or cx_col[0] + cy_col[1] <= 0.0:
+    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    if not ok or det < 1e-9:
         return math.inf
-    return math.sqrt(0.5 * (cx_col[0] + cy_col[1]))
+    # the diagonal of the inverse: cofactors over the determinant
+    return math.sqrt(0.5 * ((a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) + (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0])) / det)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -312,10 +313,9 @@ def rim_fit(x, y, ignore, cx, cy, n_sectors, k, gap_events, min_sector_events, n
                 ss += res[j] * res[j]
         rms = math.sqrt(ss / n_keep)
         n_in = n_keep
-        dilution = _dilution(bx[:m], by[:m], keep[:m], cx, cy)
         if moved < 0.05:  # sectors would not change
             break
-    return True, cx, cy, r, rms, n_in, dilution
+    return True, cx, cy, r, rms, n_in, _dilution(bx[:m], by[:m], keep[:m], cx, cy)
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
