@@ -126,8 +126,8 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         x, y = x[sub], y[sub]
         ignore = None if ignore is None else ignore[sub]
     ignore = np.zeros(len(x), np.bool_) if ignore is None else np.ascontiguousarray(ignore, np.bool_)
-    found, cx, cy, r, rms, n_in, dilution = rim_fit(x, y, ignore, float(center0[0]), float(center0[1]), n_sectors, k_outer,
-                                          gap_events, min_sector_events, n_iter)
+    found, cx, cy, r, rms, n_in, dilution = rim_fit(x, y, ignore, float(center0[0]), float(center0[1]), n_sectors,
+                                                    k_outer, gap_events, min_sector_events, n_iter)
     if not found:
         return None
     if not (r_range[0] <= r <= r_range[1]):

@@ -10,8 +10,11 @@ searching, ``track_events`` around the prediction while tracking, at most
 
 * each ball being tracked (a flight) has its own Kalman filter and window:
   the prediction gives the search region, the velocity for motion compensation
-  and the gate; a gated fit updates the filter. The flight ends when the ball
-  leaves the sensor, after ``max_misses`` slices without a fit, or when
+  and the gate; a gated fit updates the filter, weighted by its centre sigma
+  (larger where its rim points cover a shorter arc). A plain ball lit from one
+  side is fitted on the directions where its rim shows (``detect.limb``). The
+  flight ends when the ball leaves the sensor, after ``max_misses`` slices
+  without a fit, or when
   confident fits fall outside the gate twice in a row (hit or bounce: those fits
   start the next flight's detections);
 * the search looks for balls not yet tracked: the density map of the window's
