@@ -171,3 +171,21 @@ def test_a_refitting_flight_keeps_its_lit_directions_while_its_profile_briefly_s
         assert limb.refine(x, y, fit, (5.0, 60.0)) is fit
         limb.observe(x, y, fit)
     assert limb.rim is None
+
+
+def test_a_refit_that_changes_the_radius_by_much_is_not_taken(monkeypatch):
+    """A refit through too few points once took 10 % off the radius (within 0.1 r of the centre) and
+    lost the ball: a refit that changes the radius by more than REFIT_MAX_DR of it is not taken (made
+    larger here: a smaller one could also fail the unlit directions' inset)."""
+    import detect.limb as limb_mod
+    limb = _flight_of_half_lit_windows(np.random.default_rng(7))
+    x, y, _ = _half_lit(np.random.default_rng(8))
+    fit = fit_circle(x, y, center0=(CX, CY))
+    real = limb_mod.lit_rim_fit
+    for scale, taken in ((1.0 + 0.5 * limb_mod.REFIT_MAX_DR, True), (1.0 + 1.5 * limb_mod.REFIT_MAX_DR, False)):
+        def scaled(*args, scale=scale):
+            found, cx, cy, r, rms, dilution = real(*args)
+            return found, cx, cy, scale * fit.r, rms, dilution
+        monkeypatch.setattr(limb_mod, "lit_rim_fit", scaled)
+        out = limb.refine(x, y, fit, (5.0, 60.0))
+        assert (out is not fit) == taken
