@@ -88,10 +88,15 @@ def sector_tops(x, y, cx, cy, n_sectors, k, depth):
     kth_rho2, deep_rho2 : (n_sectors,) float64 squared distances of the ``k``-th and the
         ``depth``-th outermost (NaN where fewer). Of equal distances the earlier event ranks outer.
     """
+    return _tops(x, y, cx, cy, _sectors(x, y, cx, cy, n_sectors), n_sectors, k, depth)
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def _tops(x, y, cx, cy, sec, n_sectors, k, depth):
+    """:func:`sector_tops` of events whose sectors ``sec`` ((N,) int64, :func:`_sectors`) are known."""
     counts = np.zeros(n_sectors, np.int64)
     top_rho2 = np.full((n_sectors, depth), -1.0)   # descending
     top_idx = np.full((n_sectors, depth), -1, np.int64)
-    sec = _sectors(x, y, cx, cy, n_sectors)
     for i in range(len(x)):
         dx = x[i] - cx
         dy = y[i] - cy
@@ -179,18 +184,23 @@ def _circle_normal(bx, by, keep, cx, cy, r):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
+def _det3(a):
+    """Determinant of a 3x3 ``a``."""
+    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
 def _solve3(a, b):
     """``(ok, x)`` of ``a x = b`` for a 3x3 ``a`` (Cramer's rule; ok False where ``a`` is near singular)."""
-    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    det = _det3(a)
     x = np.zeros(3)
     if abs(det) < 1e-9:
         return False, x
     for c in range(3):
         m = a.copy()
         m[:, c] = b
-        x[c] = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-                + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])) / det
+        x[c] = _det3(m) / det
     return True, x
 
 
@@ -200,8 +210,7 @@ def _dilution(bx, by, keep, cx, cy):
     ``sqrt((C_xx + C_yy) / 2)`` of ``C = (J^T J)^-1`` (:func:`_circle_normal`); ``sqrt(2 / n)`` for n
     points spread evenly round the whole circle, more for a shorter arc (``inf`` where it is singular)."""
     a, _, ok = _circle_normal(bx, by, keep, cx, cy, 0.0)
-    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    det = _det3(a)
     if not ok or det < 1e-9:
         return math.inf
     # the diagonal of the inverse: cofactors over the determinant
@@ -363,7 +372,8 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
     bx = np.empty(n_sectors)
     by = np.empty(n_sectors)
     for _ in range(n_iter):
-        counts, kth, kth_rho2, deep_rho2 = sector_tops(x, y, cx, cy, n_sectors, k, k)
+        sec = _sectors(x, y, cx, cy, n_sectors)
+        counts, kth, kth_rho2, deep_rho2 = _tops(x, y, cx, cy, sec, n_sectors, k, k)
         lo2 = np.full(n_sectors, np.inf)
         hi2 = np.full(n_sectors, -1.0)
         for s in range(n_sectors):
@@ -375,7 +385,6 @@ def lit_rim_fit(x, y, rim, cx, cy, r, k, band_px, min_sector_events, n_iter):
         sr = np.zeros(n_sectors)
         su = np.zeros(n_sectors)
         sv = np.zeros(n_sectors)
-        sec = _sectors(x, y, cx, cy, n_sectors)
         for i in range(len(x)):
             dx = x[i] - cx
             dy = y[i] - cy

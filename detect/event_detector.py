@@ -137,8 +137,14 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     coverage = n_in / n_sectors
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
-    sigma_px = float(min(dilution, 10.0) * max(rms, 0.3))  # dilution sqrt(2 / n_in) round the whole rim
-    return CircleFit(cx, cy, r, float(score), sigma_px, n, float(coverage))
+    return CircleFit(cx, cy, r, float(score), centre_sigma_px(dilution, rms), n, float(coverage))
+
+
+def centre_sigma_px(dilution: float, rms_px: float) -> float:
+    """Sigma (px) of a rim fit's centre from its points' ``rms_px`` scatter about the circle (at least 0.3 px:
+    the pixel grid) and its ``dilution`` (the centre's error per px of scatter: ``sqrt(2 / n)`` for ``n``
+    points round the whole rim, more on a shorter arc; at most 10)."""
+    return float(min(dilution, 10.0) * max(rms_px, 0.3))
 
 
 def hough_circles(x: np.ndarray, y: np.ndarray, *, r_range: tuple[float, float], max_circles: int = 3,

@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from detect._kernels import lit_rim_fit, limb_profile, sector_tops
+from detect.event_detector import centre_sigma_px
 
 N_SECTORS = 16
 # the rings of the profile, px from the fitted rim: inside it, and at it
@@ -130,7 +131,7 @@ class LimbModel:
         """The refit of :meth:`refine`, or None where there is none; where the unlit directions' edge is not
         (on average over the refits) ``INSET_PX`` inside it, the next ``RETRY_AFTER`` fits are not tried."""
         found, cx, cy, r, rms, dilution = lit_rim_fit(x, y, self.rim, fit.cx, fit.cy, fit.r, K_OUTER, BAND_PX,
-                                               MIN_SECTOR_EVENTS, 4)
+                                                      MIN_SECTOR_EVENTS, 4)
         if (not found or not r_range[0] <= r <= r_range[1] or np.hypot(cx - fit.cx, cy - fit.cy) > 0.1 * fit.r
                 or abs(r - fit.r) > REFIT_MAX_DR * fit.r):
             return None
@@ -144,7 +145,7 @@ class LimbModel:
         if self.inset_px < INSET_PX:
             self.wait = RETRY_AFTER
             return None
-        return replace(fit, cx=float(cx), cy=float(cy), r=float(r), sigma_px=float(min(dilution, 10.0) * max(rms, 0.3)))
+        return replace(fit, cx=float(cx), cy=float(cy), r=float(r), sigma_px=centre_sigma_px(dilution, rms))
 
     def observe(self, x: np.ndarray, y: np.ndarray, fit) -> None:
         """Add the profile of events ``(x, y)`` (px, float64) around ``fit`` (a fit of the ball)."""

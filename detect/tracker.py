@@ -14,9 +14,8 @@ searching, ``track_events`` around the prediction while tracking, at most
   (larger where its rim points cover a shorter arc). A plain ball lit from one
   side is fitted on the directions where its rim shows (``detect.limb``). The
   flight ends when the ball leaves the sensor, after ``max_misses`` slices
-  without a fit, or when
-  confident fits fall outside the gate twice in a row (hit or bounce: those fits
-  start the next flight's detections);
+  without a fit, or when confident fits fall outside the gate twice in a row
+  (hit or bounce: those fits start the next flight's detections);
 * the search looks for balls not yet tracked: the density map of the window's
   events (those near a tracked ball left out) gives candidate clusters; each is
   motion-compensated with its own centroid velocity and fitted with a circle;
@@ -173,9 +172,9 @@ def _continues(chain, m: int, fit: CircleFit, width: int, height: int) -> bool:
     if len(chain) == 1:
         # a first detection's velocity is its window's centroid's, wrong where the events are few
         # (a slow ball's shading drifts): the ball is anywhere from where it was to where that predicts
-        step = np.array([px - tf.cx, py - tf.cy])
-        along = np.clip(np.dot([fit.cx - tf.cx, fit.cy - tf.cy], step) / max(float(step @ step), 1e-12), 0.0, 1.0)
-        px, py = tf.cx + along * step[0], tf.cy + along * step[1]
+        sx, sy = px - tf.cx, py - tf.cy
+        along = min(max(((fit.cx - tf.cx) * sx + (fit.cy - tf.cy) * sy) / max(sx * sx + sy * sy, 1e-12), 0.0), 1.0)
+        px, py = tf.cx + along * sx, tf.cy + along * sy
     if np.hypot(fit.cx - px, fit.cy - py) <= 0.3 * tf.r + 3.0:
         return True
     depth, depth0 = _depth_px(fit, width, height), _depth_px(tf, width, height)
