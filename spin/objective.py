@@ -19,6 +19,8 @@ from functools import cached_property, lru_cache
 import cv2
 import numpy as np
 
+from spin import _kernels
+
 
 @dataclass(frozen=True)
 class BallEvents:
@@ -248,20 +250,15 @@ def iwe_parts(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, n_p
     return img.reshape(h, n_parts, width).transpose(1, 0, 2)
 
 
-def _axis_cross(n, a):
-    """``n x a`` for a constant vector ``n`` (3,) and a component tuple ``a`` of (N,) arrays."""
-    return (n[1] * a[2] - n[2] * a[1], n[2] * a[0] - n[0] * a[2], n[0] * a[1] - n[1] * a[0])
-
-
 def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, gradient: bool = True,
              velocity_gradient: bool = True, lifted=None):
     """Variance of the IWE and, optionally, its gradient, for one or several angular velocities.
 
     All events turn about the same axis ``n = w / |w|`` by ``phi_k = |w| tau_k``, so the
     rotation is evaluated as ``q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p)`` and the
-    sums over events of the gradient factor through constant cross products with ``n``.
-    Several angular velocities are evaluated in one pass (their IWEs side by side in one
-    raster): the fixed cost of a pass then counts once.
+    sums over events of the gradient factor through constant cross products with ``n``
+    (:mod:`spin._kernels`).  Several angular velocities are evaluated in one pass (their IWEs side
+    by side in one raster): the fixed cost of a pass then counts once.
 
     Parameters
     ----------
@@ -283,79 +280,25 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     """
     single = np.ndim(w_rad_s) == 1
     p, dzdx, dzdy, inside = lift_moving(ev, velocity_px_s) if lifted is None else lifted
-    # q in IWE pixels (scaled), relative to the centre
-    q, n, omega, phi, sin, one_cos = _rotated(p, ev.tau_s, np.reshape(w_rad_s, (-1, 3)), geometry.scale)
-    k, _, n_ev = q.shape
+    axes, omega = _kernels.axes_speeds(np.reshape(np.asarray(w_rad_s, dtype=np.float64), (-1, 3)))
+    k = len(omega)
+    phi = np.multiply(omega.astype(ev.tau_s.dtype)[:, None], ev.tau_s)
+    sin = np.sin(phi)
+    one_cos = 1 - np.cos(phi)
     h, width = geometry.shape
-    size = h * width
-    weight = ev.weight if k == 1 else np.tile(ev.weight, k)
-    img, corners, frac, a, b = _bilinear(_iwe_coords(q, geometry, clip=not (inside and geometry.holds_sphere)),
-                                         weight, (h, k * width))
+    # (points off their IWE, possible only for wild velocities, are held the kernel's reach inside its
+    # edge, where neither blur reaches the neighbouring IWE or the raster's edge)
+    place = (geometry.scale, geometry.radius_px * geometry.scale + geometry.pad, geometry.size, geometry.hemispheres,
+             h, width, not (inside and geometry.holds_sphere), float(geometry.pad - geometry.margin_px))
+    img, corner, fu, fv, q = _kernels.vote(p, ev.weight, axes, sin, one_cos, *place)
     # the variance of the blurred IWE G * H from one filter pass: <G * H, G * H> = <H, G * G * H> (G is
     # symmetric, and no vote lies within the kernel's reach of the raster's edge but for clipped points)
     ggh = blur_twice(img, geometry.sigma, geometry.truncate)
-    product = np.multiply(img, ggh)
-    value = []
-    for i in range(k):
-        image = np.s_[:, i * width:(i + 1) * width]
-        mean = cv2.sumElems(img[image])[0] / size  # (the blur keeps the sum)
-        value.append(cv2.sumElems(product[image])[0] / size - mean * mean)
+    value = _kernels.variances(img, ggh, k, width)
     if not gradient:
-        return value[0] if single else np.array(value)
-    # d value / d H = 2 / size * (G * G * H - mean); its bilinear derivative at each point takes only
-    # differences between the four corners, where the constant mean cancels
-    # (4, K N): g00, g01, g10, g11
-    g = np.take(ggh.ravel(), corners)
-    d01 = g[1] - g[0]
-    d23 = g[3] - g[2]
-    du = a * d01
-    du += b * d23
-    # dv = weight ((1 - fu) (g10 - g00) + fu (g11 - g01)); (g11 - g01) - (g10 - g00) = d23 - d01
-    d23 -= d01
-    d23 *= frac[0]
-    d23 += g[2]
-    d23 -= g[0]
-    dv = d23 * weight.astype(np.float32, copy=False)
-    dt = q.dtype.type
-    du = du.astype(dt, copy=False).reshape(k, n_ev)
-    dv = dv.astype(dt, copy=False).reshape(k, n_ev)
-    # d f / d theta_k = J_l(theta_k)^T a_k with a_k = q_k x (du, dv, 0) and theta_k = phi_k n:
-    # J_l^T a = a - (1 - cos)/phi n x a + (1 - sin/phi) n x (n x a); d theta_k / d w = tau_k (for the
-    # part along n; the same J_l form covers the perpendicular part), so
-    # d f / d w = A - n x B + n x (n x C) with A, B, C the tau-weighted sums below
-    acr = np.empty((k, 3, n_ev), dtype=dt)
-    np.multiply(q[:, 2], dv, out=acr[:, 0])
-    np.negative(acr[:, 0], out=acr[:, 0])
-    np.multiply(q[:, 2], du, out=acr[:, 1])
-    np.multiply(q[:, 0], dv, out=acr[:, 2])
-    acr[:, 2] -= q[:, 1] * du
-    # tau (1 - cos)/phi and tau (phi - sin)/phi are (1 - cos)/omega and (phi - sin)/omega; matrix-vector
-    # products (a (3, N) x (N, 3) product with a transposed operand costs 4x more), the rest on Python
-    # floats (cheaper than NumPy calls on 3-vectors)
-    sums_a = (acr @ ev.tau_s).tolist()
-    sums_b = (acr @ one_cos[:, :, None]).tolist()
-    sums_c = (acr @ (phi - sin)[:, :, None]).tolist()
-    grad_w = []
-    scale_a = 2.0 / size
-    for i in range(k):
-        scale_bc = scale_a / omega[i] if omega[i] > 0 else scale_a  # (B and C are 0 at omega = 0)
-        nxb = _axis_cross(n[i], [scale_bc * c[0] for c in sums_b[i]])
-        nxnxc = _axis_cross(n[i], _axis_cross(n[i], [scale_bc * c[0] for c in sums_c[i]]))
-        grad_w.append([scale_a * sums_a[i][j] - nxb[j] + nxnxc[j] for j in range(3)])
-    grad_w = np.array(grad_w)
-    if not velocity_gradient:
-        grad_v = np.zeros((k, 2))
-    else:
-        # d f / d p_k = scale R_k^T g_k (rotation by -phi_k about n); p depends on v through the centre offset
-        grad_v = np.empty((k, 2))
-        for i in range(k):
-            gq = (du[i], dv[i], np.zeros_like(du[i]))
-            nd = tuple(dt(c) for c in n[i])
-            nxg = _axis_cross(nd, gq)
-            nxnxg = _axis_cross(nd, nxg)
-            gp = tuple(gq[j] - sin[i] * nxg[j] + one_cos[i] * nxnxg[j] for j in range(3))
-            grad_v[i] = [-np.dot(ev.s_s, gp[0] + gp[2] * dzdx), -np.dot(ev.s_s, gp[1] + gp[2] * dzdy)]
-        grad_v *= 2.0 * geometry.scale / size
+        return float(value[0]) if single else value
+    grad_w, grad_v = _kernels.gradients(ev.tau_s, ev.s_s, ev.weight, dzdx, dzdy, axes, omega, phi, sin, one_cos,
+                                        geometry.scale, corner, fu, fv, q, ggh, velocity_gradient)
     if single:
-        return value[0], grad_w[0], grad_v[0]
-    return np.array(value), grad_w, grad_v
+        return float(value[0]), grad_w[0], grad_v[0]
+    return value, grad_w, grad_v

@@ -13,6 +13,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from spin import _kernels
 from spin.objective import BallEvents, IweGeometry, blur
 
 
@@ -70,28 +71,16 @@ def _lift_rows(ev: BallEvents, index: np.ndarray, velocity_px_s, dtype=np.float3
     return pts, ev.tau_s[index].T.astype(dtype), ev.weight[index].T.astype(np.float32)
 
 
-def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_rad_s: np.ndarray,
-               directions: np.ndarray, geometry: IweGeometry) -> np.ndarray:
-    """IWE variance for angular velocities ``omega_r * direction_d`` and for no rotation; returns (R, D + 1).
+def direction_matrix(directions: np.ndarray, geometry: IweGeometry) -> np.ndarray:
+    """Matrix (10, C (D + 1)), float32, that takes an event's features ``(sin(phi) p, (1 - cos(phi)) p, p,
+    1)`` to its IWE coordinates u, v (and z with ``geometry.hemispheres``: C = 3) turned about each of
+    ``directions`` (D, 3) and without rotation (the last column), scaled to IWE pixels and offset to the
+    raster, with the half pixel that makes truncation round.
 
-    Row ``r`` (speed ``omegas_rad_s[r]``) uses the lifted events ``pts[:, r]`` ((N, R, 3), times
-    ``tau_s`` (N, R), weights (N, R)).  Exact rotation of events x rows x directions as one
-    matrix product, nearest-pixel voting into stacked small IWEs (enough at this resolution: the
-    blur does the rest); the last column is the variance without rotation.
+    ``q = p + sin(phi) n x p + (1 - cos(phi)) (n (n . p) - p)`` is linear in those features.
     """
-    dt = np.float32
     n = np.asarray(directions, dtype=np.float64)
     d = len(n)
-    phi = tau_s * np.asarray(omegas_rad_s, dtype=dt)[None, :]  # (N, R)
-    n_ev, r = phi.shape
-    # q = p + sin(phi) n x p + (1 - cos(phi)) (n (n . p) - p) is linear in the features
-    # (sin(phi) p, (1 - cos(phi)) p, p, 1): one matrix product gives each IWE coordinate (scaled to IWE
-    # pixels and offset to the raster) for every direction, and the last column without rotation
-    feat = np.empty((n_ev, r, 10), dtype=dt)
-    np.multiply(np.sin(phi)[:, :, None], pts, out=feat[:, :, 0:3])
-    np.multiply((1 - np.cos(phi))[:, :, None], pts, out=feat[:, :, 3:6])
-    feat[:, :, 6:9] = pts
-    feat[:, :, 9] = 1.0
     zero = np.zeros_like(n[:, 0])
     cross = (np.stack([zero, -n[:, 2], n[:, 1]]), np.stack([n[:, 2], zero, -n[:, 0]]),
              np.stack([-n[:, 1], n[:, 0], zero]))
@@ -103,29 +92,42 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
         mats[3:6, i, :d] = n.T * n[:, k][None, :] - eye[:, k:k + 1]
         mats[6 + k, i, :] = 1.0
     mats[:9] *= geometry.scale
-    mats[9, :2] = geometry.radius_px * geometry.scale + geometry.pad + 0.5  # + 0.5: truncation rounds
-    q = np.matmul(feat.reshape(n_ev * r, 10), mats.reshape(10, -1).astype(dt)).reshape(n_ev, r, len(comps), d + 1)
+    mats[9, :2] = geometry.radius_px * geometry.scale + geometry.pad + 0.5
+    return mats.reshape(10, -1).astype(np.float32)
+
+
+def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_rad_s: np.ndarray,
+               matrix: np.ndarray, geometry: IweGeometry) -> np.ndarray:
+    """IWE variance for angular velocities ``omega_r * direction_d`` and for no rotation; returns (R, D + 1).
+
+    Row ``r`` (speed ``omegas_rad_s[r]``) uses the lifted events ``pts[:, r]`` ((N, R, 3), times
+    ``tau_s`` (N, R), weights (N, R)); ``matrix`` is :func:`direction_matrix` of the D directions.
+    Exact rotation of events x rows x directions as one matrix product, nearest-pixel voting into
+    small IWEs side by side (:func:`spin._kernels.vote_nearest`; enough at this resolution: the blur
+    does the rest); the last column is the variance without rotation.
+    """
+    dt = np.float32
+    phi = tau_s * np.asarray(omegas_rad_s, dtype=dt)[None, :]  # (N, R)
+    n_ev, r = phi.shape
+    feat = np.empty((n_ev, r, 10), dtype=dt)
+    np.multiply(np.sin(phi)[:, :, None], pts, out=feat[:, :, 0:3])
+    np.multiply((1 - np.cos(phi))[:, :, None], pts, out=feat[:, :, 3:6])
+    feat[:, :, 6:9] = pts
+    feat[:, :, 9] = 1.0
+    comps = 3 if geometry.hemispheres else 2
+    q = np.matmul(feat.reshape(n_ev * r, 10), matrix).reshape(n_ev, r, comps, -1)
+    images = r * q.shape[3]
     h, width = geometry.shape
-    images = r * (d + 1)
-    stride = images * width
-    u = q[:, :, 0]
-    if geometry.hemispheres:
-        u = u + (q[:, :, 2] > 0) * dt(geometry.size)
     # the IWEs side by side in one raster (the blur then runs along long rows: 3x faster than IWEs
     # stacked on top of each other); their margins keep neighbours apart
-    idx = q[:, :, 1].astype(np.intp)
-    idx *= stride
-    idx += u.astype(np.intp)
-    idx += (np.arange(images, dtype=np.intp) * width).reshape(1, r, d + 1)
-    wgt = np.repeat(weight.astype(np.float64).ravel(), d + 1)  # the (N, R) weights along the directions
-    img = np.bincount(idx.ravel(), wgt, h * stride).astype(np.float32)
-    img = blur(img.reshape(h, stride), geometry.sigma, geometry.truncate)
+    img = _kernels.vote_nearest(q, weight, geometry.hemispheres, geometry.size, h, width)
+    img = blur(img, geometry.sigma, geometry.truncate)
     n_px = h * width
     ones = np.ones(h, dtype=np.float32)
     mean = (ones @ img).reshape(images, width).sum(axis=1) / n_px  # column sums as one product; float32: ample
     np.multiply(img, img, out=img)
     var = (ones @ img).reshape(images, width).sum(axis=1) / n_px - mean * mean
-    return var.reshape(r, d + 1)
+    return var.reshape(r, -1)
 
 
 def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omega_max_rad_s: float,
@@ -161,10 +163,11 @@ def coarse_search(ev: BallEvents, velocity_px_s, *, omega_min_rad_s: float, omeg
                            margin_px=0)
     index = _span_rows(ev, omegas, span_rad, n_events)  # (M, n)
     pts, tau, weight = _lift_rows(ev, index, velocity_px_s)
+    matrix = direction_matrix(directions, geometry)
     scores = np.empty((n_omega, n_directions))
     for k in range(0, n_omega, rows_per_call):  # a few rows at a time: the arrays stay in cache
         part = slice(k, min(k + rows_per_call, n_omega))
-        raw = score_rows(pts[:, part], tau[:, part], weight[:, part], omegas[part], directions, geometry)
+        raw = score_rows(pts[:, part], tau[:, part], weight[:, part], omegas[part], matrix, geometry)
         scores[part] = raw[:, :-1] / np.maximum(raw[:, -1:], 1e-30)
     return omegas, directions, scores
 

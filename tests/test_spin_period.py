@@ -149,7 +149,7 @@ def test_folding_over_the_turns_keeps_every_events_rotation():
 
 
 def test_a_baseball_over_many_turns_is_found_on_its_folded_events(monkeypatch):
-    ev, truth = _ball("baseball", 800, 0.008, seed=2)
+    ev, truth = _ball("baseball", 700, 0.008, seed=1)
     w_true = truth["axis"] * truth["omega_rad_s"]
     angle, log_ratio = fast._deviation(fast.estimate_window(ev, (0.0, 0.0)).w_rad_s, w_true)
     assert angle < 5 and log_ratio < math.log(1.05)

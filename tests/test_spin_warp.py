@@ -127,3 +127,39 @@ def test_contrast_is_the_variance_of_the_blurred_iwe():
     assert np.allclose(even, iwe_parts(ev.take(slice(0, None, 2)), w, (0.0, 0.0), geo)[0], atol=1e-5)
     assert np.allclose(odd, iwe_parts(ev.take(slice(1, None, 2)), w, (0.0, 0.0), geo)[0], atol=1e-5)
     assert np.allclose(even + odd, image, atol=1e-4)
+
+
+@pytest.mark.parametrize("hemispheres", [False, True])
+def test_coarse_scores_are_variances_of_nearest_pixel_iwes(hemispheres):
+    # each score of the coarse search's table, recomputed the plain way: every event rotated by its own
+    # angle about one direction (float64), rounded to its nearest IWE pixel, the image blurred
+    from spin.objective import blur
+    from spin.search import _lift_rows, direction_matrix, fibonacci_sphere, score_rows
+
+    ev = _ball_events(np.random.default_rng(6), n=400)
+    geo = IweGeometry(ev.radius_px, 0.3, 1.0, hemispheres, 2.0, margin_px=0)
+    omegas = np.array([400.0, 1500.0, 6000.0])
+    index = np.stack([np.arange(0, 400, 2), np.arange(1, 400, 2), np.arange(100, 300)])  # (R, N) events per row
+    pts, tau, weight = _lift_rows(ev, index, (0.0, 0.0))
+    directions = fibonacci_sphere(12)
+    table = score_rows(pts, tau, weight, omegas, direction_matrix(directions, geo), geo)
+    assert table.shape == (3, 13)
+    h, width = geo.shape
+    for r, omega in enumerate(omegas):
+        p = pts[:, r].astype(np.float64)
+        for d, n in enumerate([*directions, None]):
+            if n is None:  # the last column: no rotation
+                q = p
+            else:
+                phi = omega * tau[:, r].astype(np.float64)[:, None]
+                q = p + np.sin(phi) * np.cross(n, p) + (1 - np.cos(phi)) * (n * (p @ n)[:, None] - p)
+            u = q[:, 0] * geo.scale + geo.radius_px * geo.scale + geo.pad + 0.5
+            v = q[:, 1] * geo.scale + geo.radius_px * geo.scale + geo.pad + 0.5
+            if hemispheres:
+                u += (q[:, 2] > 0) * geo.size
+            image = np.zeros((h, width), np.float32)
+            np.add.at(image, (v.astype(int), u.astype(int)), weight[:, r])
+            expected = float(np.var(blur(image, geo.sigma, geo.truncate), dtype=np.float64))
+            assert table[r, d] == pytest.approx(expected, rel=0.02)
+    # the directions score apart: the table is not one value throughout
+    assert np.ptp(table[:, :-1]) > 0.1 * table.max()

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import spin
+from spin import _kernels as spin_kernels
 from capture.events import Track, concatenate, in_order_mask, time_slice
 from detect import BallTracker, spin_windows
 
@@ -77,6 +78,7 @@ class LiveAnalysis:
                  window_us: int = 2000, min_events: int = 1500, max_events: int = 20000,
                  max_queue: int = 16, keep_us: int = 200_000, camera=None, flicker_hz: float | str | None = None):
         self.tracker = BallTracker(width, height, flicker_hz=flicker_hz)
+        spin_kernels.load()  # here, not in the first live estimate (it would hold the GIL a stream needs)
         self.camera = camera
         self.review = review
         self.state = LiveState()
