@@ -19,7 +19,10 @@ The rows:
 * ``loom`` / ``recede``: a ball approaching / leaving the camera (pinhole lens, radius
   changing 15 -> 40 px / 40 -> 15 px);
 * ``dvs128``: a 128x128 sensor, a plain ball rolling slowly past and approaching (a few
-  kev/s, 0.6 s), realistic pixel (latency, refractory period, leak and shot noise);
+  kev/s, 0.6 s), realistic pixel (latency, refractory period, leak and shot noise), a wide lens
+  (110 px focal length); ``dvs128-long``: the same through a longer lens (400 px), where the ball is
+  seen more nearly from its side as the light falls and less of its rim shows (added 2026-11-27
+  and never tuned on);
 * ``flicker``: a 100 Hz light flickering over a quarter of the sensor (the area the
   ball crosses) on top of the usual scene; the tracker is told the frequency (``flicker_hz``,
   as a user who knows the hall's mains would; ``--no-flicker-hz`` withholds it;
@@ -106,9 +109,10 @@ def make_case(name: str, seed: int, quick: bool = False):
                           width=w, height=h, duration_s=dur, start_px=start, velocity_px_s=vel, gravity_px_s2=0.0,
                           projection="pinhole", focal_px=f_px, depth_velocity_m_s=(z1 - z0) / dur,
                           distractors=(), **common), dur
-    if name == "dvs128":
+    if name in ("dvs128", "dvs128-long"):
         w = h = 128
-        f_px, r_m = 110.0, BALL_RADIUS_M["plain"]
+        # a 4.5 mm lens on the DVS128's 40 um pixels (110 px), or a 16 mm one (400 px)
+        f_px, r_m = 110.0 if name == "dvs128" else 400.0, BALL_RADIUS_M["plain"]
         r0, r1 = 15.0, 40.0
         dur = 0.3 if quick else 0.6
         z0, z1 = r_m * f_px / r0, r_m * f_px / r1
@@ -150,7 +154,7 @@ def make_case(name: str, seed: int, quick: bool = False):
 
 ROWS = ["volley-720-10-5", "volley-720-40-30-f", "volley-480-25-5-f", "volley-480-80-30",
         "plain", "basketball", "tabletennis", "arm-small", "arm-large", "big", "loom", "recede", "dvs128",
-        "flicker", "still", "bounce", "two-balls"]
+        "dvs128-long", "flicker", "still", "bounce", "two-balls"]
 
 
 def _other_balls(rec):
