@@ -64,8 +64,9 @@ def test_pixel_thinning_keeps_a_share_of_every_column():
 @pytest.mark.parametrize("seed", [3, 7])
 def test_a_lagging_sensor_is_flagged_not_trusted(monkeypatch, seed):
     # a volleyball at 1,200 rps on the realistic sensor: its pixels trail the fast seams by many
-    # pixels and the rate comes out more than 4 % low (seed 3: 5.7 %, seed 7: 4.5 %; under 1 % on
-    # the ideal sensor below); the halves share the bias
+    # pixels and the contrast peaks at a rate more than 4 % low (seed 3: 5.7 %, seed 7: 4.5 %; under 1 %
+    # on the ideal sensor below); the halves share the bias. The trail measured on the ball's bursts
+    # corrects part of it (2.4 % / 1.9 % left), and the rest is in the uncertainty
     rng = np.random.default_rng(seed)
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
@@ -76,10 +77,14 @@ def test_a_lagging_sensor_is_flagged_not_trusted(monkeypatch, seed):
 
     est = spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
     err_pct = 100 * abs(est.rps / truth["rps"] - 1)
-    assert err_pct > 4.0
+    monkeypatch.setattr(fast, "LAG_RATE_GAIN", 0.0)  # uncorrected
+    raw = spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
+    raw_err_pct = 100 * abs(raw.rps / truth["rps"] - 1)
+    assert raw.rps < truth["rps"] and raw_err_pct > 4.0 and est.rps > raw.rps and err_pct < 0.6 * raw_err_pct
+    monkeypatch.undo()
     assert est.confidence < 0.5 and err_pct <= 2 * est.rps_sigma_pct
     assert 0.5 * est.rps_sigma_pct < est.rps_lag_pct <= est.rps_sigma_pct  # mostly the lag: the part kept apart
-    monkeypatch.setattr(fast, "LAG_SIGMA_SCALE", 0.0)  # without the lag term: confidently wrong
+    monkeypatch.setattr(fast, "LAG_SIGMA_SCALE", 0.0)  # without the lag term: trusted (the term is what flags it)
     blind = spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
     assert blind.confidence >= 0.5 and blind.rps == pytest.approx(est.rps)
     monkeypatch.undo()
