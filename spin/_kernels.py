@@ -224,7 +224,11 @@ def vote_nearest(q, weight, hemispheres, size, h, width):
                 u = q[i, r, 0, d]
                 if hemispheres:
                     u += size * (q[i, r, 2, d] > 0.0)
-                acc[int(q[i, r, 1, d]) * stride + int(u) + base + d * width] += wt
+                # (held on the raster: a point beyond it, which the margins leave no room for, must not
+                # write outside the image)
+                col = min(max(int(u), 0), width - 1)
+                row = min(max(int(q[i, r, 1, d]), 0), h - 1)
+                acc[row * stride + col + base + d * width] += wt
     return acc.astype(np.float32).reshape(h, stride)
 
 
