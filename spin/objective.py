@@ -127,16 +127,13 @@ def _corner_offsets(w: int) -> np.ndarray:
 
 @lru_cache(maxsize=64)
 def _clip_limits(h: int, w: int, inset: int, dtype) -> np.ndarray:
-    """Upper coordinate limits (2, 1, 1) of an ``h`` x ``w`` raster, ``inset`` px inside its edge."""
-    return np.array([[[w - 1.001 - inset]], [[h - 1.001 - inset]]], dtype=dtype)
+    """Upper coordinate limits (2, 1) of an ``h`` x ``w`` raster, ``inset`` px inside its edge."""
+    return np.array([[w - 1.001 - inset], [h - 1.001 - inset]], dtype=dtype)
 
 
-def _bilinear(uv, weight, shape):
-    """Bilinear voting of ``weight`` (N,) at IWE coordinates ``uv`` (2, N) on the raster (changed in place).
-
-    Returns the image (float32, ``shape``), the four corners' flat indices (4, N) and the
-    weights split along v, ``a = weight (1 - fv)`` and ``b = weight fv`` (float32, (N,)).
-    """
+def _bilinear(uv, weight, shape) -> np.ndarray:
+    """Image (float32, ``shape``) of ``weight`` (N,) voted bilinearly at IWE coordinates ``uv`` (2, N)
+    (changed in place)."""
     h, w = shape
     base = np.floor(uv)
     frac = np.subtract(uv, base, out=uv).astype(np.float32, copy=False)
@@ -152,8 +149,7 @@ def _bilinear(uv, weight, shape):
     np.subtract(a, votes[1], out=votes[0])
     np.multiply(b, frac[0], out=votes[3])
     np.subtract(b, votes[3], out=votes[2])
-    img = np.bincount(corners.ravel(), votes.ravel(), h * w).astype(np.float32).reshape(h, w)
-    return img, corners, frac, a, b
+    return np.bincount(corners.ravel(), votes.ravel(), h * w).astype(np.float32).reshape(h, w)
 
 
 def lift_moving(ev: BallEvents, velocity_px_s):
@@ -187,66 +183,47 @@ def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
                      [s * x * z, s * y * z, s * (z * z - 1)]], dtype=dtype)
 
 
-def _rotated(p, tau_s, w_rad_s, scale: float):
-    """Points ``p`` (3, N) rotated by ``|w_k| tau`` about ``w_k / |w_k|``, times ``scale``, for each ``w_k``.
-
-    ``w_rad_s`` is (K, 3).  Returns ``q`` (K, 3, N), the axes ``n`` (K tuples of 3 floats), the
-    speeds ``omega`` (K floats, rad/s), and ``phi``, ``sin(phi)``, ``1 - cos(phi)`` (K, N).
-    """
-    omega, n = [], []
-    for wx, wy, wz in np.asarray(w_rad_s, dtype=np.float64).tolist():
-        om = math.sqrt(wx * wx + wy * wy + wz * wz)
-        omega.append(om)
-        n.append((wx / om, wy / om, wz / om) if om > 0 else (0.0, 0.0, 1.0))
-    k, n_ev = len(omega), len(tau_s)
-    phi = np.multiply(np.array(omega, dtype=tau_s.dtype)[:, None], tau_s)
-    sin = np.sin(phi)
-    one_cos = 1 - np.cos(phi)
-    # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9 K, 3) product
-    rows = _rotation_rows(n[0], scale, p.dtype) if k == 1 else np.concatenate(
-        [_rotation_rows(nk, scale, p.dtype) for nk in n])
-    terms = (rows @ p).reshape(k, 9, n_ev)
-    q = terms[:, 0:3]
-    q += sin[:, None] * terms[:, 3:6]
-    q += one_cos[:, None] * terms[:, 6:9]
-    return q, n, omega, phi, sin, one_cos
+def _rotated(p, tau_s, w_rad_s, scale: float) -> np.ndarray:
+    """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|`` (``w_rad_s``: (3,), rad/s), times
+    ``scale``: (3, N)."""
+    wx, wy, wz = (float(c) for c in np.ravel(w_rad_s))
+    om = math.sqrt(wx * wx + wy * wy + wz * wz)
+    n = (wx / om, wy / om, wz / om) if om > 0 else (0.0, 0.0, 1.0)
+    phi = np.multiply(tau_s.dtype.type(om), tau_s)
+    # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9, 3) product
+    terms = _rotation_rows(n, scale, p.dtype) @ p
+    q = terms[0:3]
+    q += np.sin(phi) * terms[3:6]
+    q += (1 - np.cos(phi)) * terms[6:9]
+    return q
 
 
 def warp(ev: BallEvents, w_rad_s, velocity_px_s) -> np.ndarray:
     """Points (3, N), px relative to the centre, rotated to ``t_ref``."""
-    return _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, np.reshape(w_rad_s, (1, 3)), 1.0)[0][0]
+    return _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, 1.0)
 
 
-def _iwe_coords(q, geometry: IweGeometry, clip: bool = True):
-    """IWE coordinates (2, K N) of scaled points ``q`` (K, 3, N) relative to the centre.
-
-    The K IWEs lie side by side in one raster of K times ``geometry.shape``'s width; with ``clip``
-    points off their IWE (possible only for wild velocities) are held the kernel's reach inside
-    its edge (where neither blur reaches the neighbouring IWE or the raster's edge).
-    """
-    k, _, n_ev = q.shape
+def _iwe_coords(q, geometry: IweGeometry):
+    """IWE coordinates (2, N) of scaled points ``q`` (3, N) relative to the centre; points off the IWE
+    (possible only for wild velocities) are held the kernel's reach inside its edge."""
     dt = q.dtype.type
-    uv = np.empty((2, k, n_ev), dtype=q.dtype)
-    np.add(q[:, :2].transpose(1, 0, 2), dt(geometry.radius_px * geometry.scale + geometry.pad), out=uv)
+    uv = np.add(q[:2], dt(geometry.radius_px * geometry.scale + geometry.pad))
     if geometry.hemispheres:
-        uv[0] += (q[:, 2] > 0) * dt(geometry.size)
+        uv[0] += (q[2] > 0) * dt(geometry.size)
     h, width = geometry.shape
-    if clip:
-        reach = geometry.pad - geometry.margin_px  # the kernel's
-        np.clip(uv, reach, _clip_limits(h, width, reach, q.dtype), out=uv)  # (3x faster than np.maximum, np.minimum)
-    if k > 1:
-        uv[0] += (np.arange(k, dtype=q.dtype) * dt(width))[:, None]
-    return uv.reshape(2, k * n_ev)
+    reach = geometry.pad - geometry.margin_px  # the kernel's
+    np.clip(uv, reach, _clip_limits(h, width, reach, q.dtype), out=uv)  # (3x faster than np.maximum, np.minimum)
+    return uv
 
 
 def iwe_parts(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, n_parts: int = 1) -> np.ndarray:
     """Smoothed images of warped events, float32 (n_parts, *geometry.shape): image ``k`` of events ``k::n_parts``."""
-    q = _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, np.reshape(w_rad_s, (1, 3)), geometry.scale)[0]
+    q = _rotated(lift_moving(ev, velocity_px_s)[0], ev.tau_s, w_rad_s, geometry.scale)
     h, width = geometry.shape
     uv = _iwe_coords(q, geometry)
     if n_parts > 1:  # the parts' images side by side in one raster
         uv[0] += (np.arange(len(ev)) % n_parts).astype(uv.dtype) * uv.dtype.type(width)
-    img = blur(_bilinear(uv, ev.weight, (h, n_parts * width))[0], geometry.sigma, geometry.truncate)
+    img = blur(_bilinear(uv, ev.weight, (h, n_parts * width)), geometry.sigma, geometry.truncate)
     return img.reshape(h, n_parts, width).transpose(1, 0, 2)
 
 
@@ -281,6 +258,12 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     single = np.ndim(w_rad_s) == 1
     p, dzdx, dzdy, inside = lift_moving(ev, velocity_px_s) if lifted is None else lifted
     axes, omega = _kernels.axes_speeds(np.reshape(np.asarray(w_rad_s, dtype=np.float64), (-1, 3)))
+    # (the compiled loops index the raster by the points' coordinates: nothing non-finite may reach them)
+    if not math.isfinite(float(omega.sum()) + float(velocity_px_s[0]) + float(velocity_px_s[1])):
+        raise ValueError(f"contrast: angular velocity {np.asarray(w_rad_s).tolist()} rad/s or velocity "
+                         f"{np.asarray(velocity_px_s).tolist()} px/s is not finite")
+    if p.shape[1] != len(ev):
+        raise ValueError(f"contrast: lifted points for {p.shape[1]} events, not the {len(ev)} given")
     k = len(omega)
     phi = np.multiply(omega.astype(ev.tau_s.dtype)[:, None], ev.tau_s)
     sin = np.sin(phi)
@@ -289,7 +272,8 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     # (points off their IWE, possible only for wild velocities, are held the kernel's reach inside its
     # edge, where neither blur reaches the neighbouring IWE or the raster's edge)
     place = (geometry.scale, geometry.radius_px * geometry.scale + geometry.pad, geometry.size, geometry.hemispheres,
-             h, width, not (inside and geometry.holds_sphere), float(geometry.pad - geometry.margin_px))
+             h, width, not (inside and geometry.holds_sphere and ev.radius_px <= geometry.radius_px),
+             float(geometry.pad - geometry.margin_px))
     img, corner, fu, fv, q = _kernels.vote(p, ev.weight, axes, sin, one_cos, *place)
     # the variance of the blurred IWE G * H from one filter pass: <G * H, G * H> = <H, G * G * H> (G is
     # symmetric, and no vote lies within the kernel's reach of the raster's edge but for clipped points)

@@ -120,7 +120,7 @@ def score_rows(pts: np.ndarray, tau_s: np.ndarray, weight: np.ndarray, omegas_ra
     h, width = geometry.shape
     # the IWEs side by side in one raster (the blur then runs along long rows: 3x faster than IWEs
     # stacked on top of each other); their margins keep neighbours apart
-    img = _kernels.vote_nearest(q, weight, geometry.hemispheres, geometry.size, h, width)
+    img = _kernels.vote_nearest(q, np.ascontiguousarray(weight), geometry.hemispheres, geometry.size, h, width)
     img = blur(img, geometry.sigma, geometry.truncate)
     n_px = h * width
     ones = np.ones(h, dtype=np.float32)

@@ -163,3 +163,17 @@ def test_coarse_scores_are_variances_of_nearest_pixel_iwes(hemispheres):
             assert table[r, d] == pytest.approx(expected, rel=0.02)
     # the directions score apart: the table is not one value throughout
     assert np.ptp(table[:, :-1]) > 0.1 * table.max()
+
+
+def test_contrast_refuses_non_finite_parameters_and_holds_points_of_a_bigger_ball_on_its_raster():
+    ev = _ball_events(np.random.default_rng(7))
+    geo = IweGeometry(ev.radius_px, 0.5, 1.5, True)
+    for w, v in (([np.nan, 0.0, 300.0], (0.0, 0.0)), ([np.inf, 0.0, 0.0], (0.0, 0.0)), ([300.0, 0.0, 0.0], (np.nan, 0.0))):
+        with pytest.raises(ValueError, match="not finite"):
+            contrast(ev, np.array(w), v, geo)
+    # an IWE raster made for a smaller ball: its points are held on it, as the plain IWE holds them
+    small = IweGeometry(0.6 * ev.radius_px, 0.5, 1.5, True)
+    w = np.array([300.0, -200.0, 500.0])
+    image = iwe_parts(ev, w, (0.0, 0.0), small)[0]
+    assert contrast(ev, w, (0.0, 0.0), small, gradient=False) == pytest.approx(float(np.var(image, dtype=np.float64)),
+                                                                              rel=1e-4)
