@@ -762,7 +762,7 @@ def cell_counts(x, y, cell_px, gw, gh):
             continue
         cx = x[i] >> shift if pow2 else x[i] // cell_px
         cy = y[i] >> shift if pow2 else y[i] // cell_px
-        if cx < gw and cy < gh:
+        if 0 <= cx < gw and 0 <= cy < gh:
             dens[cy, cx] += 1.0
     return dens
 
@@ -855,7 +855,7 @@ def load() -> None:
             near_track(batch["t"], batch["x"], batch["y"], np.zeros(1, np.int64), np.ones(1, np.int64), rows,
                        rows, rows, rows, rows)
     box_select(t, x, y, 0, 0, 0, 0, np.zeros(1, np.bool_), 1)
-    kept_events(t, x, y, np.zeros(1, np.bool_), np.zeros(1, np.bool_), 1)
+    kept_events(t, x, y, np.zeros(2, np.bool_), np.zeros(1, np.bool_), 1)
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)
     surrounded(x, y, 0.0, 0.0, 1.0, 12, 1)
     surrounded(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 12, 1)

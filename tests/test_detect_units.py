@@ -664,3 +664,31 @@ def test_big_ball_is_found_with_the_default_radius_range():
     assert len(out.flight_ids()) == 1
     ex, ey = _truth(out.t_us, c0, v)
     assert np.median(np.hypot(out.cx - ex, out.cy - ey)) < 1.0 and np.median(np.abs(out.r - 140.0)) < 1.5
+
+
+def test_options_that_would_index_outside_the_density_map_or_the_sectors_are_refused():
+    for cell_px in (0, -1000, 10_000):
+        with pytest.raises(ValueError, match="cell_px"):
+            BallTracker(320, 240, cell_px=cell_px)
+    x, y = np.random.default_rng(0).uniform(0, 100, (2, 500))
+    for bad in (dict(n_sectors=0), dict(k_outer=0), dict(gap_events=0)):
+        with pytest.raises(ValueError, match="fit_circle needs"):
+            fit_circle(x, y, center0=(50.0, 50.0), **bad)
+
+
+def test_a_burst_at_one_instant_gives_no_velocity_and_no_runaway_grid():
+    # 2,000 events of a ring at one microsecond, its left half first, and one more a microsecond later:
+    # the halves' centroids "moved" 20 px in a fraction of a microsecond (10^10 px/s), and the events moved
+    # along that velocity asked for a density grid of gigabytes
+    from detect.event_detector import estimate_velocity
+
+    n = 2000
+    a = np.random.default_rng(0).uniform(0, 2 * np.pi, n)
+    a = np.r_[a[np.cos(a) < 0], a[np.cos(a) >= 0]]
+    x, y = np.rint(160 + 20 * np.cos(a)), np.rint(120 + 20 * np.sin(a))
+    t = np.full(n, 1000)
+    t[-1] = 1001
+    assert estimate_velocity(x, y, t) == (0.0, 0.0)
+    ev = make_events(t, x.astype(np.uint16), y.astype(np.uint16), np.ones(n, np.int8))
+    track = track_ball(ev, width=320, height=240)  # (asked for gigabytes before)
+    assert len(track) == 0  # one instant is no flight
