@@ -12,7 +12,6 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 import spin
 from spin import _kernels as spin_kernels
@@ -123,11 +122,8 @@ class LiveAnalysis:
 
     def _run(self) -> None:
         try:
-            # one BLAS thread while the analysis runs: spin's small products gain nothing from more, and
-            # BLAS's idle threads would spin on the core that decoding and storing need
-            with threadpool_limits(1):
-                while (batch := self._queue.get()) is not None:
-                    self._analyse(batch)
+            while (batch := self._queue.get()) is not None:
+                self._analyse(batch)
         except Exception as exc:  # reported by the recorder; the recording goes on regardless
             self.error = exc
 

@@ -461,11 +461,8 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
     # once tracking is done, this process joins in
     workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
-    # this process's spin parts too on one BLAS thread: their small products gain nothing from more, and
-    # BLAS's idle threads spin on the core the worker needs (measured on the 5 Mev/s replay bench session:
-    # 1.40-1.60 s against 1.23-1.34 s)
-    with threadpool_limits(1), SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
-                                          initializer=one_thread_per_worker) as work:
+    with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
+                    initializer=one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     store_results(session_path, track, spin_columns, options)
