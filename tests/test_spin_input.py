@@ -140,3 +140,26 @@ def test_camera_errors_reach_estimate_windows():
     assert spin.estimate_windows([win], camera=_camera(width=120)) == []
     with pytest.raises(spin.SpinInputError, match="outside the camera's"):
         spin.estimate_windows([win], camera=_camera(width=120), skip_errors=False)
+
+
+def test_an_estimate_runs_on_one_blas_thread_and_gives_the_others_back(monkeypatch):
+    # its matrix products are small: BLAS's other threads would only spin on the other cores
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import sim
+    from spin import fast
+
+    seen = []
+    real = fast.estimate_fast
+
+    def spy(*args, **kwargs):
+        seen.append([lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr("spin.estimate.estimate_fast", spy)
+    ev, truth = sim.spinning_ball("volleyball", rps=30, axis=(0.0, 0.0, 1.0), radius_px=30, n_events=5000, seed=1)
+    with threadpool_limits(2, user_api="blas"):
+        spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
+        after = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+    assert seen and seen[0] and all(n == 1 for n in seen[0])
+    assert after and all(n == 2 for n in after)
