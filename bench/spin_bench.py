@@ -106,6 +106,7 @@ def bench_rally(seed: int) -> None:
     """Fast method on replay-like windows, each flight's windows in order as a replay runs them, without
     and with the warm start from the previous window: errors, success, time per window, confidence of failures.
     """
+    _init_worker()  # (the compiled loops loaded before the first timed window)
     rows = {False: [], True: []}
     for name, windows, truth in rally_flights(seed):
         for warm in (False, True):
@@ -154,6 +155,8 @@ def run_case(job) -> dict:
         return rec
     rec["ms"] = 1e3 * (time.process_time() - t)
     rec["axis_deg"], rec["rps_pct"] = errors(est.axis, est.omega_rad_s, truth)
+    rec["rps_signed_pct"] = 100.0 * (est.omega_rad_s / truth["omega_rad_s"] - 1.0)
+    rec["rps_lag_pct"] = float(est.rps_lag_pct)  # LAG_SIGMA_SCALE (0.3) of the trail in % (spin.pixel_lag)
     rec["confidence"] = float(est.confidence)
     rec["axis_sigma_deg"], rec["rps_sigma_pct"] = float(est.axis_sigma_deg), float(est.rps_sigma_pct)
     return rec
@@ -249,14 +252,16 @@ def bench_matrix(args) -> None:
 
 
 def main(argv=None):
+    from spin_cases import HELD_OUT_SEED0
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paper", action="store_true", help="the seed paper's protocol instead of the matrix")
     ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
     m = ap.add_argument_group("matrix")
     m.add_argument("--seeds", type=int, default=3, help="tuning seeds per row (0, 1, ...)")
-    m.add_argument("--held-out", type=int, default=2, help="held-out seeds per row (1000, 1001, ...)")
-    m.add_argument("--held-out-from", type=int, default=1000,
-                   help="first held-out seed (the README's other held-out sets: 2000, 3000); at least 1000")
+    m.add_argument("--held-out", type=int, default=2, help="held-out seeds per row (from --held-out-from on)")
+    m.add_argument("--held-out-from", type=int, default=HELD_OUT_SEED0,
+                   help=f"first held-out seed (the README's other held-out sets: 2000, 3000); at least {HELD_OUT_SEED0}")
     m.add_argument("--cache", default=None, help="directory caching the simulated cases")
     m.add_argument("--jobs", type=int, default=1, help="worker processes (each on one core)")
     m.add_argument("--textures", default=None, help="comma-separated subset (default: all)")
@@ -275,8 +280,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0, help="seed of the paper and rally sequences")
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
-    if args.held_out_from < 1000:
-        ap.error(f"--held-out-from must be at least 1000 (seeds below are the tuning set), got {args.held_out_from}")
+    if args.held_out_from < HELD_OUT_SEED0:
+        ap.error(f"--held-out-from must be at least {HELD_OUT_SEED0} (seeds below are the tuning set), "
+                 f"got {args.held_out_from}")
     cv2.setNumThreads(1)  # one core: times are CPU time of this process
     if args.rally:
         bench_rally(args.seed)

@@ -837,6 +837,7 @@ def load() -> None:
     Once per process (a second thread asking meanwhile waits on Numba's lock)."""
     rim_fit(np.zeros(1), np.zeros(1), np.zeros(1, np.bool_), 0.0, 0.0, 12, 1, 2, 1, 1)
     limb_profile(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 16, (4.0, 2.0), 1.0)
+    sector_tops(np.zeros(1), np.zeros(1), 0.0, 0.0, 16, 3, 3)  # (the limb model's check of a refit)
     lit_rim_fit(np.zeros(1), np.zeros(1), np.zeros(16, np.bool_), 0.0, 0.0, 1.0, 3, 1.0, 8, 1)
     hot_update(np.zeros(1), 1.0, np.zeros(1, np.int32), np.zeros(0, np.int64), np.zeros(1, np.int64), 1,
                np.zeros(1, np.bool_), 1, 1, 1.0, 1.0)

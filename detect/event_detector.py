@@ -113,6 +113,11 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     -------
     CircleFit or None
         None if there are too few boundary points or the radius is out of range.
+
+    Raises
+    ------
+    ValueError
+        ``n_sectors`` below 12, or ``k_outer``, ``gap_events`` or ``min_sector_events`` below 1.
     """
     if n_sectors < 12 or k_outer < 1 or gap_events < 1 or min_sector_events < 1:
         raise ValueError(f"fit_circle needs n_sectors >= 12 and k_outer, gap_events, min_sector_events >= 1, got "

@@ -353,7 +353,8 @@ class BallTracker:
             raise ValueError(f"model must be 'ca' or 'cv', got {model!r}")
         self.gate_chi2 = float(gate_chi2)
         if not 1 <= int(cell_px) <= max(width, height):
-            raise ValueError(f"cell_px must be between 1 and the sensor's size ({max(width, height)} px), got {cell_px}")
+            raise ValueError(f"cell_px must be between 1 and the sensor's size ({max(width, height)} px), "
+                             f"got {cell_px}")
         self.cell_px = int(cell_px)
         self.frame_sigma_px = float(frame_sigma_px)
         self.smooth = bool(smooth)

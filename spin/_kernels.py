@@ -42,8 +42,9 @@ def axes_speeds(w_rad_s):
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def vote(p, weight, axes, sin, one_cos, scale, offset, size, hemispheres, h, width, clip, reach):
-    """IWEs of the events ``p`` (3, N) turned about each of ``axes`` (K, 3) by ``phi`` (``sin``,
-    ``one_cos``: (K, N)) and scaled, voted bilinearly with ``weight`` (N,).
+    """IWEs of the events ``p`` (3, N; ball px from the centre) turned about each of ``axes`` (K, 3) by
+    ``phi`` (``sin``, ``one_cos``: (K, N)) and scaled by ``scale`` (IWE px per ball px), voted bilinearly
+    with ``weight`` (N,); ``offset``, ``size`` and ``reach`` are IWE px.
 
     IWE ``k`` occupies columns ``[k width, (k + 1) width)`` of an ``h``-row raster; a point's IWE
     coordinates are its scaled ``(x, y) + offset``, moved one ``size`` to the right when
@@ -55,6 +56,8 @@ def vote(p, weight, axes, sin, one_cos, scale, offset, size, hemispheres, h, wid
     img : ndarray float32 (h, K width)
     corner : ndarray int32 (K, N)
         Flat index of each point's top-left bilinear corner.
+
+    Every input must be finite (:func:`spin.objective.contrast` checks): the coordinates index the raster.
     fu, fv : ndarray float32 (K, N)
         Its fractions along u and v.
     q : ndarray float32 (K, 3, N)
@@ -139,7 +142,9 @@ def gradients(tau_s, s_s, weight, dzdx, dzdy, axes, omega, phi, sin, one_cos, sc
     """Gradients of :func:`variances` w.r.t. each angular velocity ``w_k = omega_k axes_k`` (rad/s; (K, 3))
     and the centre velocity (px/s; (K, 2), zeros unless ``velocity_gradient``), for :func:`vote`'s IWEs
     with ``blurred_twice`` = ``G * G * H`` ((h, K width)), from the points ``q``, corners and fractions
-    :func:`vote` returned.
+    :func:`vote` returned.  Per event (N,): ``tau_s`` (``t_ref - t``, s), ``s_s`` (``t - t0``, s),
+    ``weight``, ``dzdx``, ``dzdy`` (:func:`spin.objective.lift_moving`); per angular velocity and event
+    (K, N): ``phi`` (rad), ``sin``, ``one_cos``; ``omega`` (K,) rad/s; ``scale`` IWE px per ball px.
 
     ``d value / d H = 2 / size (G * G * H - mean)``; at each point ``q`` its bilinear derivative
     ``(du, dv)`` (times the weight) takes only differences between the four corners, where the mean

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -42,7 +44,7 @@ class SpinEstimate:
     n_events : int
         Number of events used.
     contrast : float
-        IWE variance at the estimate (method-specific scale).
+        IWE variance at the estimate (method-specific scale; before the rate's lag correction).
     converged : bool
         Whether the optimiser met its convergence test.
     confidence : float
@@ -84,11 +86,35 @@ class SpinEstimate:
     flight: int = -1
 
 
+_BLAS_LOCK = threading.Lock()
+_blas_users = 0  # estimates running (in any thread) while BLAS is held at one thread
+_blas_limiter = None
+
+
+@contextmanager
+def _one_blas_thread():
+    """BLAS held at one thread while any estimate runs, in whichever thread (the setting is the whole
+    process's: the first estimate to start sets it, the last to end gives the threads back).  An estimate's
+    matrix products are small, and BLAS's other threads only spin: on 2 cores an estimate took 79 ms of the
+    process's CPU against 40 ms on one thread, and the second core from whatever else ran there.  The BLAS
+    libraries are those loaded at the first estimate (NumPy's)."""
+    global _blas_users, _blas_limiter
+    with _BLAS_LOCK:
+        if _blas_users == 0:
+            _blas_limiter = _blas().limit(limits=1, user_api="blas")
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _blas_users -= 1
+            if _blas_users == 0:
+                _blas_limiter.restore_original_limits()
+
+
 @lru_cache(maxsize=1)
 def _blas() -> ThreadpoolController:
-    """The BLAS libraries loaded (NumPy's), found once.  An estimate runs on one BLAS thread: its matrix
-    products are small, and BLAS's other threads only spin (on 2 cores an estimate took 79 ms of the
-    process's CPU against 40 ms on one thread, and the second core from whatever else ran there)."""
+    """The BLAS libraries loaded, found once (their list takes milliseconds to make; a limit on it 6 us)."""
     return ThreadpoolController()
 
 
@@ -391,7 +417,7 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         for name in ("prior_w_rad_s", "init_w_rad_s"):
             if opts.get(name) is not None:
                 opts[name] = view.to_ball(opts[name])
-    with _blas().limit(limits=1, user_api="blas"):
+    with _one_blas_thread():
         w, v, value, converged, confidence, sigmas, t_sel = _estimate(events, center, radius, t0_us, v0, v_fit, known,
                                                                       method, sensor_size, min_events, view, opts)
     if view is not None:

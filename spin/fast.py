@@ -347,9 +347,11 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     ``SIGMA_SCALE_RPS``, at least ``SIGMA_FLOOR_DEG`` / ``SIGMA_FLOOR_PCT``; the rate's also holds,
     in quadrature, ``LAG_SIGMA_SCALE`` times the sensor's lag seen on the ball's ``bursts``
     (:func:`spin.pixel_lag.rate_bias_pct`: a bias every part shares), which ``rps_lag_pct`` gives
-    alone; the rate itself is raised by ``LAG_RATE_GAIN`` of that lag beyond ``LAG_RATE_FROM_PCT``; a rate of one turn per period of the image over at least ``PERIOD_SIGMA_MIN_PERIODS`` periods
-    has no lag term and the floor ``PERIOD_SIGMA_FLOOR_PCT``.  ``axis_sigma_deg``, ``rps_sigma_pct`` and
-    ``rps_lag_pct`` are NaN without a cross-check.  ``opts`` go to :func:`estimate_window`.
+    alone; a rate of one turn per period of the image over at least ``PERIOD_SIGMA_MIN_PERIODS`` periods
+    has no lag term and the floor ``PERIOD_SIGMA_FLOOR_PCT``.  The rate itself is raised by ``LAG_RATE_GAIN``
+    of the lag beyond ``LAG_RATE_FROM_PCT`` (the contrast stays the search's, at the rate before).
+    ``axis_sigma_deg``, ``rps_sigma_pct`` and ``rps_lag_pct`` are NaN, and the rate uncorrected, without a
+    cross-check.  ``opts`` go to :func:`estimate_window`.
     """
     whole = estimate_window(ev, velocity_px_s, **opts)
     if not check:
@@ -399,9 +401,9 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     confidence = (whole.confidence * agree * float(np.clip(1.75 - spread, 0.0, 1.0))
                   * (0.5 if n_parts == 4 and found < QUARTER_QUORUM else 1.0) * (0.5 if too_fast else 1.0)) ** 2
     # the trail makes the contrast peak at a slower spin: the rate is corrected by part of it
-    return replace(whole, w_rad_s=whole.w_rad_s * (1.0 + LAG_RATE_GAIN * max(trail_pct - LAG_RATE_FROM_PCT, 0.0) / 100.0),
-                   confidence=confidence,
-                   axis_sigma_deg=axis_sigma, rps_sigma_pct=rps_sigma, rps_lag_pct=lag)
+    raise_by = 1.0 + LAG_RATE_GAIN * max(trail_pct - LAG_RATE_FROM_PCT, 0.0) / 100.0
+    return replace(whole, w_rad_s=whole.w_rad_s * raise_by, confidence=confidence, axis_sigma_deg=axis_sigma,
+                   rps_sigma_pct=rps_sigma, rps_lag_pct=lag)
 
 
 def estimate_window(ev: BallEvents, velocity_px_s, *, velocity_known: bool = True,

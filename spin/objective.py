@@ -157,7 +157,7 @@ def lift_moving(ev: BallEvents, velocity_px_s):
 
     Also returns ``dz/ddx`` and ``dz/ddy`` factors (``dx/sqrt(r^2-d^2)``), zero where clamped,
     and whether every event lies within the ball's radius (then no point is longer than
-    ``1.005 r``: the depth is clamped at ``0.1 r``).
+    ``1.005 r``: the depth is clamped at ``0.1 r``).  Raises ``ValueError`` for a non-finite position.
     """
     vx, vy = (ev.s_s.dtype.type(c) for c in velocity_px_s)
     p = np.empty((3, len(ev)), dtype=ev.x_px.dtype)
@@ -170,7 +170,10 @@ def lift_moving(ev: BallEvents, velocity_px_s):
     root = np.sqrt(np.maximum(zq, floor))
     np.negative(root, out=p[2])
     inv = np.where(clamped, 0.0, 1.0 / root).astype(dx.dtype)
-    return p, dx * inv, dy * inv, bool(zq.min(initial=0.0) >= 0.0)
+    lowest = zq.min(initial=0.0)
+    if lowest != lowest:
+        raise ValueError("lift_moving: an event's position or time is not finite")
+    return p, dx * inv, dy * inv, bool(lowest >= 0.0)
 
 
 def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
@@ -258,10 +261,12 @@ def contrast(ev: BallEvents, w_rad_s, velocity_px_s, geometry: IweGeometry, *, g
     single = np.ndim(w_rad_s) == 1
     p, dzdx, dzdy, inside = lift_moving(ev, velocity_px_s) if lifted is None else lifted
     axes, omega = _kernels.axes_speeds(np.reshape(np.asarray(w_rad_s, dtype=np.float64), (-1, 3)))
-    # (the compiled loops index the raster by the points' coordinates: nothing non-finite may reach them)
-    if not math.isfinite(float(omega.sum()) + float(velocity_px_s[0]) + float(velocity_px_s[1])):
-        raise ValueError(f"contrast: angular velocity {np.asarray(w_rad_s).tolist()} rad/s or velocity "
-                         f"{np.asarray(velocity_px_s).tolist()} px/s is not finite")
+    # (the compiled loops index the raster by the points' coordinates: nothing non-finite may reach them;
+    # lift_moving checks the positions)
+    if not math.isfinite(float(omega.sum()) + float(velocity_px_s[0]) + float(velocity_px_s[1])
+                         + float(ev.tau_s.sum())):
+        raise ValueError(f"contrast: angular velocity {np.asarray(w_rad_s).tolist()} rad/s, velocity "
+                         f"{np.asarray(velocity_px_s).tolist()} px/s or an event's time is not finite")
     if p.shape[1] != len(ev):
         raise ValueError(f"contrast: lifted points for {p.shape[1]} events, not the {len(ev)} given")
     k = len(omega)

@@ -12,9 +12,9 @@ cannot see it.
 
 The trail is measured from the data: consecutive events of one pixel, both of one polarity (a burst),
 their time apart times the speed, under the estimated spin, of the ball's surface at that pixel.
-Its median against the distance the surface travels in the window gives the rate's systematic
-uncertainty (:func:`rate_bias_pct`): an ideal sensor gives trails of about 0.1 px, the realistic
-one 2-20 px at 200-1,200 rps.
+Its median against the distance the surface travels in the window (:func:`rate_bias_pct`) corrects part
+of the rate's bias and gives its systematic uncertainty (``spin.fast.LAG_RATE_GAIN``, ``LAG_SIGMA_SCALE``):
+an ideal sensor gives trails of about 0.1 px, the realistic one 2-20 px at 200-1,200 rps.
 """
 
 from __future__ import annotations
@@ -148,8 +148,9 @@ def trail(pairs: Bursts, w_rad_s) -> float:
 def rate_bias_pct(pairs: Bursts | None, w_rad_s, window_s: float) -> float:
     """The trail (:func:`trail`) over the distance the ball's equator travels in the window, in %.
 
-    0 without pairs or a trail: no term.  The rate's systematic error on the benchmark's realistic
-    sensor is about a third of this (``spin.fast.LAG_SIGMA_SCALE``).
+    0 without pairs or a trail: no term.  On the benchmark's realistic sensor the rate came out low by
+    0.3-0.5 of this beyond a few % (``spin.fast.LAG_RATE_GAIN`` corrects it; ``LAG_SIGMA_SCALE`` of it is
+    the rate's systematic uncertainty).
     """
     if pairs is None or len(pairs) < MIN_PAIRS:
         return 0.0

@@ -671,7 +671,7 @@ def test_options_that_would_index_outside_the_density_map_or_the_sectors_are_ref
         with pytest.raises(ValueError, match="cell_px"):
             BallTracker(320, 240, cell_px=cell_px)
     x, y = np.random.default_rng(0).uniform(0, 100, (2, 500))
-    for bad in (dict(n_sectors=0), dict(k_outer=0), dict(gap_events=0)):
+    for bad in (dict(n_sectors=0), dict(k_outer=0), dict(gap_events=0), dict(min_sector_events=0)):
         with pytest.raises(ValueError, match="fit_circle needs"):
             fit_circle(x, y, center0=(50.0, 50.0), **bad)
 

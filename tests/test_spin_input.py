@@ -149,17 +149,40 @@ def test_an_estimate_runs_on_one_blas_thread_and_gives_the_others_back(monkeypat
     import sim
     from spin import fast
 
+    from spin.estimate import _blas
+
     seen = []
     real = fast.estimate_fast
+    known = {lib["filepath"] for lib in _blas().info() if lib["user_api"] == "blas"}  # NumPy's, which spin uses
 
     def spy(*args, **kwargs):
-        seen.append([lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"])
+        seen.append([lib["num_threads"] for lib in threadpool_info() if lib["filepath"] in known])
         return real(*args, **kwargs)
 
     monkeypatch.setattr("spin.estimate.estimate_fast", spy)
     ev, truth = sim.spinning_ball("volleyball", rps=30, axis=(0.0, 0.0, 1.0), radius_px=30, n_events=5000, seed=1)
     with threadpool_limits(2, user_api="blas"):
         spin.estimate_spin(ev, truth["center"], truth["radius_px"], velocity=(0.0, 0.0))
-        after = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+        after = [lib["num_threads"] for lib in threadpool_info() if lib["filepath"] in known]
     assert seen and seen[0] and all(n == 1 for n in seen[0])
     assert after and all(n == 2 for n in after)
+
+
+def test_one_blas_thread_is_held_while_any_estimate_runs():
+    # two estimates overlapping in two threads: the first to end must not give the threads back under the
+    # second, and the last to end gives back what was there before
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from spin.estimate import _one_blas_thread
+
+    def blas_threads():
+        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    with threadpool_limits(2, user_api="blas"):
+        first, second = _one_blas_thread(), _one_blas_thread()
+        first.__enter__()
+        second.__enter__()
+        first.__exit__(None, None, None)
+        assert blas_threads() == {1}
+        second.__exit__(None, None, None)
+        assert blas_threads() == {2}

@@ -1,5 +1,7 @@
 """Warp geometry and the analytic gradient of the IWE contrast."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -168,9 +170,16 @@ def test_coarse_scores_are_variances_of_nearest_pixel_iwes(hemispheres):
 def test_contrast_refuses_non_finite_parameters_and_holds_points_of_a_bigger_ball_on_its_raster():
     ev = _ball_events(np.random.default_rng(7))
     geo = IweGeometry(ev.radius_px, 0.5, 1.5, True)
-    for w, v in (([np.nan, 0.0, 300.0], (0.0, 0.0)), ([np.inf, 0.0, 0.0], (0.0, 0.0)), ([300.0, 0.0, 0.0], (np.nan, 0.0))):
+    for w, v in (([np.nan, 0.0, 300.0], (0.0, 0.0)), ([np.inf, 0.0, 0.0], (0.0, 0.0)),
+                 ([300.0, 0.0, 0.0], (np.nan, 0.0))):
         with pytest.raises(ValueError, match="not finite"):
             contrast(ev, np.array(w), v, geo)
+    for field in ("tau_s", "x_px", "s_s"):  # (a NaN time made the loops write outside the image)
+        bad = np.array(getattr(ev, field))
+        bad[::7] = np.nan
+        with pytest.raises(ValueError, match="not finite"):
+            contrast(dataclasses.replace(ev, **{field: bad}), np.array([[300.0, 0.0, 0.0], [0.0, 200.0, 0.0]]),
+                     (0.0, 0.0), geo)
     # an IWE raster made for a smaller ball: its points are held on it, as the plain IWE holds them
     small = IweGeometry(0.6 * ev.radius_px, 0.5, 1.5, True)
     w = np.array([300.0, -200.0, 500.0])
