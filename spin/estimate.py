@@ -389,6 +389,12 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         Bad events, non-finite numbers, circle outside the sensor, no or too few events inside
         the circle, a camera whose ``K`` is not invertible or whose size does not match the
         events or ``sensor_size``.
+
+    Notes
+    -----
+    While any estimate runs, the process's BLAS is held at one thread (its setting is the whole
+    process's; it is given back when the last estimate ends): the estimate's matrix products are small,
+    and more BLAS threads only spin on the other cores.
     """
     if method not in ("fast", "paper"):
         raise SpinInputError(f"method: {method!r} is not 'fast' or 'paper'")
