@@ -173,10 +173,12 @@ def test_one_blas_thread_is_held_while_any_estimate_runs():
     # second, and the last to end gives back what was there before
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from spin.estimate import _one_blas_thread
+    from spin.estimate import _blas, _one_blas_thread
+
+    known = {lib["filepath"] for lib in _blas().info() if lib["user_api"] == "blas"}  # NumPy's, which spin uses
 
     def blas_threads():
-        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+        return {lib["num_threads"] for lib in threadpool_info() if lib["filepath"] in known}
 
     with threadpool_limits(2, user_api="blas"):
         first, second = _one_blas_thread(), _one_blas_thread()
