@@ -56,12 +56,12 @@ def vote(p, weight, axes, sin, one_cos, scale, offset, size, hemispheres, h, wid
     img : ndarray float32 (h, K width)
     corner : ndarray int32 (K, N)
         Flat index of each point's top-left bilinear corner.
-
-    Every input must be finite (:func:`spin.objective.contrast` checks): the coordinates index the raster.
     fu, fv : ndarray float32 (K, N)
         Its fractions along u and v.
     q : ndarray float32 (K, 3, N)
         The rotated, scaled points.
+
+    Every input must be finite (:func:`spin.objective.contrast` checks): the coordinates index the raster.
     """
     k_n, n = sin.shape
     stride = k_n * width

@@ -189,10 +189,9 @@ def _rotation_rows(n, scale: float, dtype) -> np.ndarray:
 def _rotated(p, tau_s, w_rad_s, scale: float) -> np.ndarray:
     """Points ``p`` (3, N) rotated by ``|w| tau`` about ``w / |w|`` (``w_rad_s``: (3,), rad/s), times
     ``scale``: (3, N)."""
-    wx, wy, wz = (float(c) for c in np.ravel(w_rad_s))
-    om = math.sqrt(wx * wx + wy * wy + wz * wz)
-    n = (wx / om, wy / om, wz / om) if om > 0 else (0.0, 0.0, 1.0)
-    phi = np.multiply(tau_s.dtype.type(om), tau_s)
+    axes, omega = _kernels.axes_speeds(np.reshape(np.asarray(w_rad_s, dtype=np.float64), (1, 3)))
+    n = tuple(axes[0].tolist())
+    phi = np.multiply(tau_s.dtype.type(omega[0]), tau_s)
     # q = p + sin(phi) n x p + (1 - cos(phi)) n x (n x p): the three terms from one (9, 3) product
     terms = _rotation_rows(n, scale, p.dtype) @ p
     q = terms[0:3]
