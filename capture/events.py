@@ -174,8 +174,10 @@ BALL_DIAMETER_M = {"volleyball": 0.21, "soccer": 0.22, "basketball": 0.24, "tenn
 
 TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_us": ("<i8", ()), "cx": ("<f8", ()), "cy": ("<f8", ()), "r": ("<f8", ()),
-    "vx": ("<f8", ()), "vy": ("<f8", ()), "score": ("<f4", ()), "flight": ("<i4", ())}
-"""Ball track: update time µs, centre and radius px, centre velocity px/s, score 0..1, flight number."""
+    "vx": ("<f8", ()), "vy": ("<f8", ()), "score": ("<f4", ()), "flight": ("<i4", ()), "sigma_px": ("<f4", ())}
+"""Ball track: update time µs, centre and radius px, centre velocity px/s, score 0..1, flight number,
+and the circle's uncertainty (1 sigma, px: see :class:`Track`; NaN where not measured, e.g. sessions
+written before this column existed)."""
 
 SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
@@ -260,6 +262,11 @@ class Track:
         Confidence of the update, 0..1.
     flight : ndarray of int32, shape (N,)
         Flight number (a new one each time the ball enters, is hit or bounces).
+    sigma_px : ndarray of float32, shape (N,)
+        Uncertainty of the circle (1 sigma), px: the true centre lies within ``2 sigma_px`` of
+        ``(cx, cy)``, and the true radius within ``2 sigma_px`` of ``r``, on 95 % of rows
+        (:func:`detect.circle_sigma_px`). NaN where not measured (not given: tracks of older
+        versions); 0 for a simulation's truth.
     """
 
     t_us: np.ndarray
@@ -270,8 +277,11 @@ class Track:
     vy: np.ndarray
     score: np.ndarray
     flight: np.ndarray
+    sigma_px: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.sigma_px is None:
+            self.sigma_px = np.full(np.shape(self.t_us), np.nan)
         for f in fields(self):
             dtype = TRACK_COLUMNS[f.name][0]
             setattr(self, f.name, np.asarray(getattr(self, f.name), dtype=dtype).reshape(-1))
@@ -288,12 +298,14 @@ class Track:
 
     @classmethod
     def from_columns(cls, columns) -> Track:
-        """From a mapping with the :data:`TRACK_COLUMNS` (or an object with those attributes)."""
+        """From a mapping with the :data:`TRACK_COLUMNS` (or an object with those attributes);
+        ``sigma_px`` may be missing (NaN: not measured)."""
         if isinstance(columns, cls):
             return columns
         if isinstance(columns, Mapping):
-            return cls(**{name: columns[name] for name in TRACK_COLUMNS})
-        return cls(**{name: getattr(columns, name) for name in TRACK_COLUMNS})
+            return cls(**{name: columns[name] for name in TRACK_COLUMNS if name != "sigma_px" or name in columns})
+        return cls(**{name: getattr(columns, name) for name in TRACK_COLUMNS
+                      if name != "sigma_px" or hasattr(columns, name)})
 
     def columns(self) -> dict[str, np.ndarray]:
         """The track as a table of :data:`TRACK_COLUMNS`."""

@@ -7,7 +7,7 @@ Layout (names are fixed; other tools rely on them)::
         index/ms_to_idx             first event index with t >= (t0_ms + k) * 1000
         triggers/{t,id,p}           external trigger events
         frames/{t_us}               frame timestamps on the event clock (+ optional image)
-        track/{t_us,cx,cy,r,vx,vy,score,flight}           capture.events.TRACK_COLUMNS
+        track/{t_us,cx,cy,r,vx,vy,score,flight,sigma_px}  capture.events.TRACK_COLUMNS
         spin/{t_start_us,t_end_us,axis,omega_rad_s,...}   capture.events.SPIN_COLUMNS
 
 Every table is a group of arrays sharing their first axis plus an attribute
@@ -222,21 +222,27 @@ class _BadChunk(Exception):
         self.index = index
 
 
-def _columns_of(rows, fields: Mapping) -> dict[str, np.ndarray]:
-    """Columns from a mapping, an object with attributes, or a structured array."""
+def _columns_of(rows, fields: Mapping, optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Columns from a mapping, an object with attributes, or a structured array; the ``optional``
+    ones may be missing (then :func:`capture.events.missing_value` on every row)."""
     out = {}
     for name in fields:
         if isinstance(rows, np.ndarray) and rows.dtype.names:
-            value = rows[name]
+            value = rows[name] if name in rows.dtype.names or name not in optional else None
         elif isinstance(rows, Mapping):
-            value = rows[name]
+            value = rows[name] if name in rows or name not in optional else None
         else:
-            value = getattr(rows, name)
-        out[name] = np.asarray(value)
+            value = getattr(rows, name) if hasattr(rows, name) or name not in optional else None
+        if value is not None:
+            out[name] = np.asarray(value)
     lengths = {len(v) for v in out.values()}
     if len(lengths) > 1:
         raise ValueError(f"columns have different lengths: { {k: len(v) for k, v in out.items()} }")
-    return out
+    n = lengths.pop() if lengths else 0
+    for name in fields:
+        if name not in out:
+            out[name] = np.full(n, missing_value(name, fields[name][0]), fields[name][0])
+    return {name: out[name] for name in fields}
 
 
 _COLUMN_WRITERS = ThreadPoolExecutor(min(4, os.cpu_count() or 1), thread_name_prefix="session-columns")
@@ -595,12 +601,13 @@ class SessionWriter:
         return _Table(_table_group(self.root, name), columns, TABLE_CHUNK)
 
     def append_track(self, track) -> None:
-        """Append ball-track rows (mapping or object with the ``capture.events.TRACK_COLUMNS``)."""
-        self._table("track", TRACK_COLUMNS).append(_columns_of(track, TRACK_COLUMNS))
+        """Append ball-track rows (mapping or object with the ``capture.events.TRACK_COLUMNS``; ``sigma_px``
+        may be missing: NaN, not measured)."""
+        self._table("track", TRACK_COLUMNS).append(_columns_of(track, TRACK_COLUMNS, optional=("sigma_px",)))
 
     def write_track(self, track) -> None:
         """Replace the whole ball track."""
-        self._table("track", TRACK_COLUMNS).replace(_columns_of(track, TRACK_COLUMNS))
+        self._table("track", TRACK_COLUMNS).replace(_columns_of(track, TRACK_COLUMNS, optional=("sigma_px",)))
 
     def append_spin(self, spin) -> None:
         """Append spin-estimate rows (mapping or object with the ``capture.events.SPIN_COLUMNS``)."""

@@ -19,6 +19,7 @@ fit, compiled in :mod:`detect._kernels`; the map's blur and labelling in OpenCV)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -43,6 +44,9 @@ class CircleFit:
         Events used (after noise filtering).
     coverage : float
         Share of the angular sectors whose boundary point lies on the fitted rim, 0..1.
+    disc_fill : float
+        Share of the events well inside the rim (within ``0.7 r`` of the centre), 0..1: low for a
+        ball that fires only at its rim (a plain ball), about half for a textured one.
     """
 
     cx: float
@@ -52,6 +56,7 @@ class CircleFit:
     sigma_px: float
     n_events: int
     coverage: float = 1.0
+    disc_fill: float = 1.0
 
 
 def _count_image(x: np.ndarray, y: np.ndarray, pad: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -142,10 +147,11 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2
     inside = np.count_nonzero(d2 <= (r + 1.5) ** 2) / len(d2)
+    disc_fill = np.count_nonzero(d2 <= (0.7 * r) ** 2) / len(d2)
     coverage = n_in / n_sectors
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r
     score = coverage * inside * float(np.exp(-0.5 * (rms / sigma_rim) ** 2))
-    return CircleFit(cx, cy, r, float(score), centre_sigma_px(dilution, rms), n, float(coverage))
+    return CircleFit(cx, cy, r, float(score), centre_sigma_px(dilution, rms), n, float(coverage), float(disc_fill))
 
 
 def centre_sigma_px(dilution: float, rms_px: float) -> float:
@@ -153,6 +159,39 @@ def centre_sigma_px(dilution: float, rms_px: float) -> float:
     the pixel grid) and its ``dilution`` (the centre's error per px of scatter: ``sqrt(2 / n)`` for ``n``
     points round the whole rim, more on a shorter arc; at most 10)."""
     return float(min(dilution, 10.0) * max(rms_px, 0.3))
+
+
+SIGMA_FIT_SCALE = 1.5
+"""The circle's uncertainty (:func:`circle_sigma_px`) holds the rim fit's own centre sigma (from its
+points' scatter, :func:`centre_sigma_px`) times this, ..."""
+SIGMA_RIM_ONLY_SCALE, SIGMA_RIM_ONLY_FILL = 0.3, 0.25
+"""... for a ball whose events fill less than ``SIGMA_RIM_ONLY_FILL`` of its disc (``disc_fill``: a
+plain ball, seen only at its rim), this times the radius times the share it lacks (its shading pulls
+the rim towards the light: up to 5-9 % of the radius, 90th percentile, on the benchmark's plain balls), ..."""
+SIGMA_ARC_SCALE, SIGMA_ARC_FULL = 0.1, 0.8
+"""... for a rim that shows on less than ``SIGMA_ARC_FULL`` of its sectors (``coverage``: an unlit
+limb, a ball partly hidden), this times the radius times the share it lacks, ..."""
+SIGMA_FLOOR_PX = 0.22
+"""... and this (px: the pixel grid's limit, and the rim's outward bias of a few tenths of a pixel
+that the radius shows on most textured balls), all four in quadrature."""
+
+
+def circle_sigma_px(fit: CircleFit) -> float:
+    """Uncertainty (1 sigma, px) of a fitted circle's centre and radius: the true centre lies within
+    ``2 sigma`` of ``(fit.cx, fit.cy)``, and the true radius within ``2 sigma`` of ``fit.r``, on 95 %
+    of fits.
+
+    The rim fit's own sigma (:func:`centre_sigma_px`) counts only its points' scatter. A ball that
+    fires only at its rim is lit on one side: the rim on its shaded side fires less and later, and the
+    fit leans towards the light by more than the scatter says; so does a fit on part of its rim.
+    Neither shows in the fit's residuals (an inset on one side is a shifted, smaller circle), so both
+    are bounded by a share of the radius. Constants (:data:`SIGMA_FIT_SCALE`,
+    :data:`SIGMA_RIM_ONLY_SCALE`, :data:`SIGMA_ARC_SCALE`, :data:`SIGMA_FLOOR_PX` and their
+    thresholds) calibrated on ``bench/detect_bench.py``'s rows, seeds 1-10 (held out: 101, 102, 11-16).
+    """
+    rim_only = SIGMA_RIM_ONLY_SCALE * fit.r * max(0.0, SIGMA_RIM_ONLY_FILL - fit.disc_fill)
+    arc = SIGMA_ARC_SCALE * fit.r * max(0.0, SIGMA_ARC_FULL - fit.coverage)
+    return float(math.sqrt((SIGMA_FIT_SCALE * fit.sigma_px) ** 2 + rim_only ** 2 + arc ** 2 + SIGMA_FLOOR_PX ** 2))
 
 
 def hough_circles(x: np.ndarray, y: np.ndarray, *, r_range: tuple[float, float], max_circles: int = 3,

@@ -46,8 +46,8 @@ import numpy as np
 
 from capture.events import EVENT_DTYPE, Track, concatenate
 from detect import _kernels
-from detect.event_detector import (CircleFit, density_filter, estimate_velocity, find_candidates, fit_circle,
-                                   hough_circles)
+from detect.event_detector import (CircleFit, circle_sigma_px, density_filter, estimate_velocity, find_candidates,
+                                   fit_circle, hough_circles)
 from detect.frame_detector import FrameDetector
 from detect.flicker import FLICKER_SAMPLE_EVENTS, FLICKER_SAMPLE_US, FlickerFilter, find_flicker_hz, flicker_mask
 from detect.hot_pixels import HotPixelMap
@@ -265,6 +265,7 @@ class _Flight:
         self.ball_rate = ball_rate  # the ball's events per µs near the prediction (recent windows)
         self.window = _Window()
         self.scores: list[float] = []  # score of each update
+        self.sigmas: list[float] = []  # circle sigma of each update, px (circle_sigma_px)
         self.misses = 0  # windows in a row without a gated fit
         self.outliers = 0  # fits in a row outside the gate
         self.outlier_fits: list = []  # those fits (a hit, a bounce?), as chain entries
@@ -711,6 +712,7 @@ class BallTracker:
         """Update flight ``fl`` with a gated ``fit`` (a window centred at ``m`` µs) and emit its row."""
         fl.kf.update(m, (fit.cx, fit.cy, fit.r), fit.sigma_px, 1.5 * fit.sigma_px)
         fl.scores.append(fit.score)
+        fl.sigmas.append(circle_sigma_px(fit))
         self._emit(fl, m)
         fl.misses = fl.outliers = 0
         fl.outlier_fits = []
@@ -922,6 +924,7 @@ class BallTracker:
         self._flights.append(fl)
         fl.circle = (f0.cx, f0.cy, f0.r)
         fl.scores = [f0.score]
+        fl.sigmas = [circle_sigma_px(f0)]
         lead_us = _chain_start_us(chain)
         if t0 - lead_us > self.slice_us:
             # a first window longer than a slice (few events per second): the ball was seen from
@@ -932,6 +935,7 @@ class BallTracker:
         for tm, f in rest:
             kf.update(tm, (f.cx, f.cy, f.r), f.sigma_px, 1.5 * f.sigma_px)
             fl.scores.append(f.score)
+            fl.sigmas.append(circle_sigma_px(f))
             self._emit(fl, tm)
         # other chains on this ball (its surround, seen in a window before the flight existed) end
         last = chain[-1][1]
@@ -971,6 +975,7 @@ class BallTracker:
             if self._in_gate(kf, t_us, c.cx, c.cy, self.frame_sigma_px):
                 kf.update(t_us, (c.cx, c.cy, c.r), self.frame_sigma_px, 1.5 * self.frame_sigma_px)
                 fl.scores.append(c.score)
+                fl.sigmas.append(self.frame_sigma_px)
                 self._emit(fl, t_us)
 
     # ------------------------------------------------------------------ rows
@@ -980,8 +985,8 @@ class BallTracker:
 
     @staticmethod
     def _row(fl: _Flight, t_us: int, s: np.ndarray) -> tuple:
-        """A track row of flight ``fl`` at ``t_us`` from filter state ``s``, with its last score."""
-        return t_us, s[0], s[1], s[6], s[2], s[3], fl.scores[-1], fl.number
+        """A track row of flight ``fl`` at ``t_us`` from filter state ``s``, with its last score and sigma."""
+        return t_us, s[0], s[1], s[6], s[2], s[3], fl.scores[-1], fl.number, fl.sigmas[-1]
 
     def _take_rows(self) -> Track:
         rows, self._new_rows = self._new_rows, []
@@ -989,7 +994,7 @@ class BallTracker:
             return Track.empty()
         cols = list(zip(*rows))
         return _by_time(Track(t_us=cols[0], cx=cols[1], cy=cols[2], r=cols[3], vx=cols[4], vy=cols[5],
-                              score=cols[6], flight=cols[7]))
+                              score=cols[6], flight=cols[7], sigma_px=cols[8]))
 
     def _finalise(self, fl: _Flight, ended: bool) -> None:
         """Make rows of flight ``fl`` final: all once it has ended (or unsmoothed); else each
@@ -1016,13 +1021,13 @@ class BallTracker:
             else:
                 t = np.array([h[0] for h in hist[start:final]], np.int64)
                 xs = np.array([h[4] for h in hist[start:final]])
-            score = fl.scores[start:final]
+            score, sigma = fl.scores[start:final], fl.sigmas[start:final]
             if start == 0 and fl.lead_us is not None:  # the row before the first update, from its state
                 t = np.insert(t, 0, fl.lead_us)
                 xs = np.vstack([kf.propagate(xs[0], t[1], fl.lead_us), xs])
-                score = score[:1] + score
+                score, sigma = score[:1] + score, sigma[:1] + sigma
             self._final.append(Track(t_us=t, cx=xs[:, 0], cy=xs[:, 1], r=xs[:, 6], vx=xs[:, 2], vy=xs[:, 3],
-                                     score=score, flight=np.full(len(t), fl.number)))
+                                     score=score, flight=np.full(len(t), fl.number), sigma_px=sigma))
             fl.n_final = final
 
 

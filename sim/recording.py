@@ -116,11 +116,11 @@ class Recording:
     frame_times_us: np.ndarray | None = None
 
     def truth_track(self, visible_only: bool = True) -> Track:
-        """Ground-truth ball circle as a :class:`capture.events.Track` (score 1, flight = segment)."""
+        """Ground-truth ball circle as a :class:`capture.events.Track` (score 1, flight = segment, sigma 0)."""
         tr = self.truth["track"]
         keep = np.asarray(tr["visible"], bool) if visible_only else np.ones(len(tr["t_us"]), bool)
         cols = {k: np.asarray(tr[k])[keep] for k in ("t_us", "cx", "cy", "r", "vx", "vy", "flight")}
-        return Track(score=np.ones(int(keep.sum()), np.float32), **cols)
+        return Track(score=np.ones(int(keep.sum()), np.float32), sigma_px=np.zeros(int(keep.sum())), **cols)
 
     def save(self, out_dir, *, raw: bool = True, video: bool = True, session: bool = False) -> dict:
         """Write the recording to ``out_dir`` (created; see the module docstring for the layout).

@@ -189,3 +189,31 @@ def test_a_refit_that_changes_the_radius_by_much_is_not_taken(monkeypatch):
         monkeypatch.setattr(limb_mod, "lit_rim_fit", scaled)
         out = limb.refine(x, y, fit, (5.0, 60.0))
         assert (out is not fit) == taken
+
+
+def _within_two_sigma(rec, track):
+    """Shares of rows whose centre and radius lie within twice the row's ``sigma_px`` of the truth."""
+    truth = rec.truth_track(visible_only=False)
+    cx, cy, r = (np.interp(track.t_us, truth.t_us, getattr(truth, k)) for k in ("cx", "cy", "r"))
+    return (np.mean(np.hypot(track.cx - cx, track.cy - cy) <= 2 * track.sigma_px),
+            np.mean(np.abs(track.r - r) <= 2 * track.sigma_px))
+
+
+def test_track_sigma_covers_the_lean_of_a_ball_seen_only_at_its_rim(dark_limb_flight, monkeypatch):
+    """A plain ball's fit leans towards the light by more than its residuals say: the track's sigma
+    still covers the centre and radius errors (its rim-only term does), and is larger than a textured
+    ball's, whose sigma stays near the pixel grid's limit."""
+    import detect.event_detector as ed
+    rec = dark_limb_flight
+    track = track_ball(rec.events, width=rec.width, height=rec.height)
+    assert len(track) > 30 and np.isfinite(track.sigma_px).all()
+    centre, radius = _within_two_sigma(rec, track)
+    assert centre >= 0.9 and radius >= 0.9
+    monkeypatch.setattr(ed, "SIGMA_RIM_ONLY_SCALE", 0.0)  # the fit's scatter and the floor alone
+    assert _within_two_sigma(rec, track_ball(rec.events, width=rec.width, height=rec.height))[0] < 0.9
+    monkeypatch.undo()
+    textured = sim.flight("volleyball", rps=30.0, radius_px=24.0, width=320, height=240, duration_s=0.08,
+                          start_px=(40.0, 120.0), velocity_px_s=(2500.0, 0.0), gravity_px_s2=0.0, seed=3)
+    tex_track = track_ball(textured.events, width=textured.width, height=textured.height)
+    assert min(_within_two_sigma(textured, tex_track)) >= 0.9
+    assert np.median(tex_track.sigma_px) < 0.4 < 2 * np.median(tex_track.sigma_px) < np.median(track.sigma_px)

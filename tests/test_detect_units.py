@@ -123,6 +123,8 @@ def test_fit_circle_on_disk_and_rim(ring, r):
     assert abs(fit.cx - 100.3) < 0.4 and abs(fit.cy - 80.6) < 0.4
     assert abs(fit.r - r) < 0.6
     assert fit.score > 0.4
+    # the share of events well inside the rim: about 0.7^2 of a uniformly filled disc, none of a rim
+    assert fit.disc_fill < 0.02 if ring else abs(fit.disc_fill - 0.49) < 0.06
 
 
 def test_fit_circle_scores_an_elongated_blob_low():

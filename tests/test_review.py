@@ -48,7 +48,8 @@ def _track() -> Track:
     t = np.r_[np.arange(10_000, 13_001, 500), np.arange(15_000, 16_001, 500)]
     flight = np.r_[np.zeros(7, int), np.ones(3, int)]
     return Track(t_us=t, cx=10.0 + 0.004 * (t - 10_000), cy=20.0 + flight * 5, r=np.where(flight, 6.0, 8.0),
-                 vx=np.full(len(t), 4000.0), vy=np.zeros(len(t)), score=np.ones(len(t)), flight=flight)
+                 vx=np.full(len(t), 4000.0), vy=np.zeros(len(t)), score=np.ones(len(t)), flight=flight,
+                 sigma_px=np.r_[np.nan, np.nan, np.linspace(0.2, 1.6, 8)])  # the first two not measured
 
 
 SPIN = {"t_start_us": np.array([10_000, 11_000, 15_000]), "t_end_us": np.array([11_000, 12_000, 16_000]),
@@ -239,6 +240,10 @@ def test_ball_circle_follows_track_and_clears_after_flight(written):
     # the image speed from the track
     speed = dict((t, v[0]) for t, v in _temporal(data["/plots/speed/image_px_s"]["Scalars:scalars"]))
     assert speed[10_000] == pytest.approx(4000.0)
+    # the circle's uncertainty, where measured
+    sigma = _temporal(data["/plots/uncertainty/ball_px"]["Scalars:scalars"])
+    assert [t for t, _ in sigma] == list(track.t_us[2:])
+    np.testing.assert_allclose([v[0] for _, v in sigma], np.linspace(0.2, 1.6, 8), rtol=1e-6)
 
 
 def test_two_balls_in_view_at_once_both_shown_each_spin_on_its_own(tmp_path):

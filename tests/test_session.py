@@ -278,6 +278,21 @@ def test_spin_table_of_an_older_session_reads_missing_columns_as_not_known(tmp_p
     assert np.isnan(sp["axis_sigma_deg"][:3]).all() and sp["axis_sigma_deg"][3] == 0.5
 
 
+def test_track_sigma_is_stored_and_reads_as_not_measured_where_an_older_version_wrote_none(tmp_path):
+    track = {k: np.arange(3) for k in TRACK_COLUMNS if k != "sigma_px"}
+    with S.create_session(tmp_path / "s", width=64, height=48) as w:
+        w.write_track(track)  # a mapping without the column (a caller of an older version)
+    assert np.isnan(S.open_session(tmp_path / "s").track()["sigma_px"]).all()
+    with S.update_session(tmp_path / "s") as w:
+        w.write_track({**track, "sigma_px": [0.5, 0.25, 2.0]})
+    assert list(S.open_session(tmp_path / "s").track()["sigma_px"]) == [0.5, 0.25, 2.0]
+    # a session written before the column existed has no such array
+    root = zarr.open_group(str(tmp_path / "s"), mode="r+", use_consolidated=False)
+    del root["track"]["sigma_px"]
+    tr = S.open_session(tmp_path / "s").track()
+    assert tr["sigma_px"].shape == (3,) and np.isnan(tr["sigma_px"]).all() and list(tr["cx"]) == [0.0, 1.0, 2.0]
+
+
 def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkeypatch):
     """The store's own chunk encoder and Zarr's write path give stores Zarr reads the same."""
     ev = _events(2 * S.EVENT_CHUNK + 777, seed=11)

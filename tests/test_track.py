@@ -25,6 +25,17 @@ def test_track_interpolates_and_extrapolates():
         Track.empty().at(0)
 
 
+def test_a_track_without_sigmas_has_them_as_not_measured():
+    tr = _track()  # made without sigma_px
+    assert tr.sigma_px.dtype == np.float32 and len(tr.sigma_px) == len(tr) and np.isnan(tr.sigma_px).all()
+    cols = {k: v for k, v in tr.columns().items() if k != "sigma_px"}
+    assert np.isnan(Track.from_columns(cols).sigma_px).all()
+    given = Track.from_columns({**cols, "sigma_px": np.arange(len(tr))})
+    assert list(given.select(given.t_us >= 9000).sigma_px) == [9.0, 10.0]
+    both = Track.concat([given, tr]).sigma_px
+    assert both[len(tr) - 1] == 10.0 and np.isnan(both[len(tr):]).all()
+
+
 def test_spin_windows_follow_the_moving_circle():
     tr = _track()
     rng = np.random.default_rng(0)

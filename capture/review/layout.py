@@ -38,6 +38,7 @@ Entity layout (shared by :func:`capture.review.write_rrd` and :class:`capture.re
     plots/confidence/trust       Scalars: the trust threshold (:data:`capture.results.TRUST`)
     plots/uncertainty/rps_pct    Scalars: spin-rate uncertainty (1 sigma), %
     plots/uncertainty/axis_deg   Scalars: spin-axis uncertainty (1 sigma), deg
+    plots/uncertainty/ball_px    Scalars: the track's circle uncertainty (1 sigma), px
     plots/event_rate/events_ev_s Scalars: event rate per slice (before decimation), ev/s
     plots/status/<name>          Scalars: live status numbers (drops, ...)
     log                          TextLog: notes (decimation, skipped batches, flight starts and ends, ...)
@@ -96,6 +97,7 @@ PLOT_CONFIDENCE = "plots/confidence"
 PLOT_TRUST = "plots/confidence/trust"
 PLOT_RPS_SIGMA = "plots/uncertainty/rps_pct"
 PLOT_AXIS_SIGMA = "plots/uncertainty/axis_deg"
+PLOT_BALL_SIGMA = "plots/uncertainty/ball_px"
 PLOT_EVENT_RATE = "plots/event_rate/events_ev_s"
 PLOT_STATUS = "plots/status"
 TEXT_LOG = "log"
@@ -205,7 +207,7 @@ def blueprint(*, frames: bool = True, width: int | None = None, height: int | No
         rrb.TimeSeriesView(origin=PLOT_SPIN_PARTS, name="Top/side/gyro (rpm)"),
         rrb.TimeSeriesView(origin="plots/speed", name="Speed"),
         rrb.Tabs(rrb.TimeSeriesView(origin=PLOT_CONFIDENCE, name="Confidence"),
-                 rrb.TimeSeriesView(origin="plots/uncertainty", name="1 sigma (%, deg)"),
+                 rrb.TimeSeriesView(origin="plots/uncertainty", name="1 sigma (%, deg, px)"),
                  rrb.TimeSeriesView(origin="plots", contents=rate_contents,
                                     name="Events/s" + (" + status" if status else ""))),
     ]

@@ -24,11 +24,11 @@ from capture.review.layout import (APPLICATION_ID, AXIS_COLOR, BALL3D, BALL3D_AX
                                    BALL_COLOR, BALL_IMAGE, BALL_RIM, DEFAULT_MAX_BALL_EVENTS_PER_SLICE, EVENTS_BALL,
                                    EVENTS_OFF, EVENTS_ON, EVENTS_SENSOR, EVENTS_SPIN_AXIS, EVENTS_SPIN_POLE,
                                    FRAMES_BALL, FRAMES_IMAGE, FRAMES_NOTE, OFF_COLOR, ON_COLOR, PIXEL_OFFSET,
-                                   PLOT_AZIMUTH, PLOT_AXIS_SIGMA, PLOT_CONFIDENCE, PLOT_ELEVATION, PLOT_EVENT_RATE,
-                                   PLOT_RPM_FLIGHT, PLOT_RPM_TRUSTED, PLOT_RPM_TRUTH, PLOT_RPM_UNTRUSTED, PLOT_RPS,
-                                   PLOT_RPS_SIGMA, PLOT_SPEED_FLIGHT, PLOT_SPEED_IMAGE, PLOT_SPIN_PARTS, PLOT_STATUS,
-                                   PLOT_TRUST, RESULTS_FLIGHTS, TEXT_LOG, TIMELINE, TRUTH_COLOR, UNTRUSTED_COLOR,
-                                   axis_angles_deg, time_column)
+                                   PLOT_AZIMUTH, PLOT_AXIS_SIGMA, PLOT_BALL_SIGMA, PLOT_CONFIDENCE, PLOT_ELEVATION,
+                                   PLOT_EVENT_RATE, PLOT_RPM_FLIGHT, PLOT_RPM_TRUSTED, PLOT_RPM_TRUTH,
+                                   PLOT_RPM_UNTRUSTED, PLOT_RPS, PLOT_RPS_SIGMA, PLOT_SPEED_FLIGHT, PLOT_SPEED_IMAGE,
+                                   PLOT_SPIN_PARTS, PLOT_STATUS, PLOT_TRUST, RESULTS_FLIGHTS, TEXT_LOG, TIMELINE,
+                                   TRUTH_COLOR, UNTRUSTED_COLOR, axis_angles_deg, time_column)
 
 _SPIN_PARTS = ("topspin", "sidespin", "gyro")
 _BALL_MARGIN = 1.25
@@ -166,6 +166,7 @@ class ReviewLogger:
         for path, name in ((PLOT_RPS, "rps"), (PLOT_AZIMUTH, "azimuth (deg)"),
                            (PLOT_ELEVATION, "elevation (deg)"), (PLOT_CONFIDENCE, "confidence"),
                            (PLOT_RPS_SIGMA, "rps sigma (%)"), (PLOT_AXIS_SIGMA, "axis sigma (deg)"),
+                           (PLOT_BALL_SIGMA, "ball circle sigma (px)"),
                            (PLOT_EVENT_RATE, "events (ev/s)")):
             rec.log(path, rr.SeriesLines(names=name), static=True)
 
@@ -257,7 +258,8 @@ class ReviewLogger:
 
     # track and spin --------------------------------------------------------------------------
     def track(self, track: Track, *, clear_after_flights: bool = True) -> None:
-        """Ball circle per track row and the ball's image speed.
+        """Ball circle per track row, the ball's image speed and the circle's uncertainty (rows that
+        have one: :attr:`capture.events.Track.sigma_px`).
 
         With ``clear_after_flights`` (offline, where flights are complete) the circle is
         cleared after each flight (:meth:`clear_after_flights`).
@@ -271,6 +273,10 @@ class ReviewLogger:
             centers=c, half_sizes=circles[:, [2, 2]]).partition(lengths))
         self.rec.send_columns(PLOT_SPEED_IMAGE, indexes=[time_column(track.t_us)],
                               columns=rr.Scalars.columns(scalars=np.hypot(track.vx, track.vy)))
+        known = np.isfinite(track.sigma_px)
+        if known.any():
+            self.rec.send_columns(PLOT_BALL_SIGMA, indexes=[time_column(track.t_us[known])],
+                                  columns=rr.Scalars.columns(scalars=track.sigma_px[known].astype(np.float64)))
         self.stats.n_track_rows += len(track)
         if clear_after_flights:
             self.clear_after_flights(track, [EVENTS_BALL])
