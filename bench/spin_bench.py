@@ -7,6 +7,10 @@ and rps < 5 %), trusted windows (confidence >= 0.5), confident failures (trusted
 success), ms per estimate; then a reliability table (confidence bins against the observed
 success) and how well the reported uncertainty covers the error.
 
+``--tracked``: spin on the circles of the tracker (simulated flights of volleyball, soccer and
+basketball, radius 10, 20 and 36 px, tracked by ``detect.track_ball``, as a replay cuts them), with the
+track's circle uncertainty taken into each estimate and without it (the circle taken as exact).
+
 ``--paper``: after the seed paper's Figs 9-10 / Table 1: volleyball at 10..500 rps and soccer
 at 100 rps (random axes, 640x480, threshold 0.15, 50,000 events, radius 100 px), plus
 volleyball at 1,000 rps and small balls (radius 30 px, 5,000 and 20,000 events).  Methods:
@@ -21,6 +25,7 @@ workers run), so the load of other processes on the machine does not skew them.
     python bench/spin_bench.py --seeds 4 --held-out 2 --cache /tmp/spin-cases --jobs 2
     python bench/spin_bench.py --paper --quick          # a few minutes
     python bench/spin_bench.py --rally                  # replay-like windows (r = 36 px, tracker velocity)
+    python bench/spin_bench.py --tracked --jobs 2       # spin on the tracker's circles, with and without their sigma
 """
 
 from __future__ import annotations
@@ -124,6 +129,63 @@ def bench_rally(seed: int) -> None:
               f"success {100 * ok.mean():.1f} %, time/window {1e3 * t.mean():.1f} ms (per-flight mean)")
         print(f"  confidence >= 0.5: {trusted.sum()} windows, success among them {100 * ok[trusted].mean():.1f} %; "
               f"failures' confidence: {np.round(c[~ok], 2).tolist()}")
+
+
+TRACKED_TEXTURES, TRACKED_RADII_PX, TRACKED_RPS = ("volleyball", "soccer"), (10, 20, 36), (30, 200)
+TRACKED_HELD_OUT_TEXTURES = ("volleyball", "soccer", "basketball")
+
+
+def tracked_flight(case) -> list[dict]:
+    """One simulated flight (``(texture, radius px, rps, sensor, seed)``, 640x480, 3,000 px/s across)
+    tracked by :func:`detect.track_ball` and cut into spin windows on that track, as a replay does:
+    each window's errors with its circle's uncertainty taken into the estimate (the track's ``sigma_px``)
+    and with the circle taken as exact (the same estimates: the warm starts do not depend on it)."""
+    from dataclasses import replace
+
+    from detect import spin_windows, track_ball
+    from spin.estimate import with_circle_sigma
+
+    texture, radius_px, rps, sensor, seed = case
+    rng = np.random.default_rng(seed)
+    rec = sim.flight(texture, rps=rps, axis=tuple(rng.normal(size=3)), radius_px=radius_px, width=640, height=480,
+                     duration_s=0.12, start_px=(60.0, 240.0), velocity_px_s=(3000.0, -500.0), gravity_px_s2=2000.0,
+                     sensor=sensor, seed=seed)
+    track = track_ball(rec.events, width=rec.width, height=rec.height)
+    windows = list(spin_windows(rec.events, track, window_us=2000, step_us=10000, min_events=1500, max_events=30000,
+                                max_window_us=20000))
+    exact = spin.estimate_windows([replace(w, sigma_px=float("nan")) for w in windows], skip_errors=False)
+    out = []
+    for est, win in zip(exact, windows):
+        told = with_circle_sigma(est, win.radius_px, win.sigma_px)
+        axis_deg, rps_pct = errors(est.axis, est.omega_rad_s, rec.truth)
+        out.append({"case": list(case), "axis_deg": axis_deg, "rps_signed_pct": 100 * (est.rps / rec.truth["rps"] - 1),
+                    "ok": axis_deg < 5 and rps_pct < 5, "circle_sigma_px": win.sigma_px,
+                    "exact": (est.confidence, est.rps_sigma_pct), "told": (told.confidence, told.rps_sigma_pct)})
+    return out
+
+
+def bench_tracked(seeds, textures, jobs: int) -> None:
+    """Spin through the tracker (:func:`tracked_flight`) per ball radius: windows right (5 deg / 5 %), trusted,
+    trusted but wrong, and how often 2 sigma of the rate covers its error among the trusted, with the circle's
+    uncertainty and with the circle taken as exact; the median signed rate error of the windows whose axis is right."""
+    from multiprocessing import Pool
+
+    cases = [(tex, r, rps, sensor, seed) for tex in textures for r in TRACKED_RADII_PX for rps in TRACKED_RPS
+             for sensor in ("ideal", "realistic") for seed in seeds]
+    with Pool(jobs, initializer=_init_worker) as pool:
+        recs = [r for part in pool.map(tracked_flight, cases, chunksize=1) for r in part]
+    print(f"spin through the tracker: {len(cases)} flights ({', '.join(textures)}; seeds {seeds}), {len(recs)} windows")
+    for radius in (*TRACKED_RADII_PX, None):
+        q = [r for r in recs if radius is None or r["case"][1] == radius]
+        rate = np.median([r["rps_signed_pct"] for r in q if r["axis_deg"] < 5])
+        line = f"  r {radius if radius else 'all':>3} px: {len(q):4d} windows, right {100 * np.mean([r['ok'] for r in q]):5.1f} %, " \
+               f"rate {rate:+.2f} % (median, axis right)"
+        for key, label in (("exact", "circle exact"), ("told", "circle's sigma")):
+            trusted = [r for r in q if r[key][0] >= 0.5]
+            wrong = sum(not r["ok"] for r in trusted)
+            cover = np.mean([abs(r["rps_signed_pct"]) <= 2 * r[key][1] for r in trusted]) if trusted else float("nan")
+            line += f" | {label}: trusted {len(trusted)}, wrong {wrong}, rate 2 sigma covers {100 * cover:.0f} %"
+        print(line, flush=True)
 
 
 def _init_worker() -> None:
@@ -257,6 +319,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paper", action="store_true", help="the seed paper's protocol instead of the matrix")
     ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
+    ap.add_argument("--tracked", action="store_true",
+                    help="spin on the tracker's circles (simulated flights, r 10-36 px), with and without their sigma")
     m = ap.add_argument_group("matrix")
     m.add_argument("--seeds", type=int, default=3, help="tuning seeds per row (0, 1, ...)")
     m.add_argument("--held-out", type=int, default=2, help="held-out seeds per row (from --held-out-from on)")
@@ -286,6 +350,10 @@ def main(argv=None):
     cv2.setNumThreads(1)  # one core: times are CPU time of this process
     if args.rally:
         bench_rally(args.seed)
+    elif args.tracked:
+        # the tuning seeds (1, 2: volleyball, soccer), then the held-out ones (3, 4, basketball too)
+        bench_tracked([1, 2], TRACKED_TEXTURES, args.jobs)
+        bench_tracked([3, 4], TRACKED_HELD_OUT_TEXTURES, args.jobs)
     elif args.paper:
         bench_paper(args)
     else:

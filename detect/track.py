@@ -6,6 +6,7 @@ Detection produces a :class:`capture.events.Track`; spin estimation consumes the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -33,6 +34,9 @@ class SpinWindow:
         Image velocity of the centre, px/s.
     flight : int
         Flight number of the track rows the window came from.
+    sigma_px : float
+        Uncertainty (1 sigma, px) of ``center`` and ``radius_px``: the larger of the two track rows
+        around ``t_start_us`` (:attr:`capture.events.Track.sigma_px`); NaN where not known.
     """
 
     t_start_us: int
@@ -42,6 +46,17 @@ class SpinWindow:
     radius_px: float
     velocity_px_s: tuple[float, float]
     flight: int
+    sigma_px: float = math.nan
+
+
+def _sigma_at(track: Track, t_us: int, flight: int) -> float:
+    """The larger ``sigma_px`` of flight ``flight``'s two rows that :meth:`Track.at` interpolates between
+    at ``t_us`` (the last at or before it, the first after it; the nearest one outside the flight's
+    span), px; NaN where neither is known."""
+    rows = track.select(track.flight == flight)
+    j = int(np.searchsorted(rows.t_us, t_us, side="right"))
+    near = rows.sigma_px[max(j - 1, 0):j + 1]
+    return float(np.nanmax(near)) if np.isfinite(near).any() else math.nan
 
 
 def window_starts_us(track: Track, step_us: int) -> dict[int, np.ndarray]:
@@ -142,4 +157,4 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
                     t1 = int(win["t"][inside[min_events - 1]]) + 1
                     n_short = int(np.searchsorted(win["t"][inside], t1))
             kept = np.take(win, inside[:n_short if max_events is None else min(n_short, max_events)])
-            yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight))
+            yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight), _sigma_at(track, t0, int(flight)))

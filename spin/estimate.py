@@ -19,6 +19,16 @@ from spin.search import coarse_search, distinct_candidates
 
 
 WARM_GAP_US = 50_000  # longest gap between windows of a flight across which an estimate seeds the next
+# The circle's uncertainty (``circle_sigma_px``, 1 sigma) in the spin's: the rate (%) and the axis (deg) move this
+# much per % of the radius that the circle's radius or centre is off.  On the spin benchmark's dense textures (seeds
+# 0-1, started from the truth) the radius 2 % off moved the rate 1.0 % at the median, 1.75 % at the 90th percentile,
+# and the centre 3 % of the radius off moved the axis 1.7 deg at the median, 3 deg at the 90th.  Through the tracker
+# (simulated volleyball and soccer flights, r 10-36 px, seeds 1-2) the rate came out 1.2-4.6 % low, 1.4-1.8 times
+# the radius's +0.3 px bias in %: 1.5 left 2 of 576 windows trusted and wrong (1.2: 4; none: 30)
+CIRCLE_RATE_PER_PCT, CIRCLE_AXIS_DEG_PER_PCT = 1.5, 0.8
+# ... and a window is trusted in full while the circle alone gives the rate at most this 1 sigma (%), not at all from
+# the second (2 sigma of it would reach the 5 % that trust stands for)
+CIRCLE_TRUST_FULL_PCT, CIRCLE_TRUST_ZERO_PCT = 1.5, 2.5
 
 
 class SpinInputError(ValueError):
@@ -50,8 +60,9 @@ class SpinEstimate:
     confidence : float
         0..1; low when the contrast barely beats no rotation, when a distinct rival
         solution (other axis or aliased omega) is almost as good, when the window
-        covers little rotation, when little of the ball's rim fires, or when the
-        events come in bursts (a strobe: aliased spins align them equally well).
+        covers little rotation, when little of the ball's rim fires, when the
+        events come in bursts (a strobe: aliased spins align them equally well), or when
+        the ball's circle is known too roughly (``circle_sigma_px``: :func:`with_circle_sigma`).
     method : str
         ``"fast"`` or ``"paper"``.
     axis_sigma_deg, rps_sigma_pct : float
@@ -59,7 +70,8 @@ class SpinEstimate:
         spread of the estimates on the two halves of the events and, for the rate, the trails the
         sensor's lag leaves behind the ball's texture (``spin.fast.estimate_fast``,
         :mod:`spin.pixel_lag`); a rate of one turn per period of the image (:mod:`spin.period`,
-        windows of several turns) has no lag term and a lower floor; NaN for ``method="paper"``.
+        windows of several turns) has no lag term and a lower floor; with the circle's
+        uncertainty given, its share too (:func:`with_circle_sigma`); NaN for ``method="paper"``.
     rps_lag_pct : float
         The part of ``rps_sigma_pct`` from the sensor's lag (% of ``rps``, 1 sigma, in quadrature
         with the rest): a bias that the windows of a flight share, so averaging them does not
@@ -330,9 +342,31 @@ def velocity_from_centroids(events, center, radius_px: float, *, t0_us=None, n_s
     return v
 
 
+def with_circle_sigma(est: SpinEstimate, radius_px: float, circle_sigma_px: float | None) -> SpinEstimate:
+    """``est`` with the uncertainty of the ball's circle (``circle_sigma_px``, 1 sigma, px, of its centre
+    and radius; None or NaN: not known, ``est`` as it is) in its own.
+
+    A radius that is off by some % of itself lifts the events onto a sphere of the wrong size, which
+    moves the rate by about as many %; a centre off by some % of the radius tilts the axis. These
+    shares (:data:`CIRCLE_RATE_PER_PCT`, :data:`CIRCLE_AXIS_DEG_PER_PCT` per % of the radius) are added
+    in quadrature to ``rps_sigma_pct`` and ``axis_sigma_deg``, and the confidence falls to none as the
+    circle's share of the rate's sigma grows from :data:`CIRCLE_TRUST_FULL_PCT` to
+    :data:`CIRCLE_TRUST_ZERO_PCT`: a window whose circle alone may put the rate 5 % off is not
+    trusted however sharp its image.
+    """
+    if circle_sigma_px is None or not np.isfinite(circle_sigma_px):
+        return est
+    rel_pct = 100.0 * float(circle_sigma_px) / float(radius_px)
+    rate_pct, axis_deg = CIRCLE_RATE_PER_PCT * rel_pct, CIRCLE_AXIS_DEG_PER_PCT * rel_pct
+    trust = float(np.clip((CIRCLE_TRUST_ZERO_PCT - rate_pct) / (CIRCLE_TRUST_ZERO_PCT - CIRCLE_TRUST_FULL_PCT),
+                          0.0, 1.0))
+    return replace(est, confidence=est.confidence * trust, axis_sigma_deg=float(np.hypot(est.axis_sigma_deg, axis_deg)),
+                   rps_sigma_pct=float(np.hypot(est.rps_sigma_pct, rate_pct)))
+
+
 def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: str = "fast",
                   sensor_size=None, min_events: int = 200, camera=None, circle: str = "detected",
-                  **opts) -> SpinEstimate:
+                  circle_sigma_px: float | None = None, **opts) -> SpinEstimate:
     """Estimate the ball's spin from its events by contrast maximisation.
 
     Parameters
@@ -371,6 +405,10 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         ``"projected"``: ``center`` is the image of the ball's centre and
         ``radius = f tan(alpha)`` (``f`` the camera's mean focal length in px, ``alpha`` the
         ball's angular radius), as ``sim`` reports its pinhole truth.
+    circle_sigma_px : float, optional
+        Uncertainty (1 sigma, px) of ``center`` and ``radius`` (the track's ``sigma_px``): taken into
+        the estimate's uncertainty and confidence (:func:`with_circle_sigma`). None or NaN: the circle
+        is taken as exact.
     **opts
         Passed to :func:`spin.fast.estimate_fast` or :func:`spin.paper.estimate_paper`
         (``paper`` also takes ``max_events``, default 50,000, and ``init_w_rad_s``; ``fast``
@@ -431,10 +469,11 @@ def estimate_spin(events, center, radius, *, t0_us=None, velocity=None, method: 
         v = v0 + view.to_px_s(v)
     omega = float(np.linalg.norm(w))
     axis = w / omega if omega > 0 else np.array([0.0, 0.0, 1.0])
-    return SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
-                        t_start_us=int(t_sel[0]), t_end_us=int(t_sel[-1]) + 1, n_events=len(t_sel),
-                        contrast=float(value), converged=bool(converged), confidence=float(confidence),
-                        method=method, **sigmas)
+    est = SpinEstimate(axis=axis, omega_rad_s=omega, rps=omega / (2 * np.pi), velocity_px_s=np.asarray(v),
+                       t_start_us=int(t_sel[0]), t_end_us=int(t_sel[-1]) + 1, n_events=len(t_sel),
+                       contrast=float(value), converged=bool(converged), confidence=float(confidence),
+                       method=method, **sigmas)
+    return with_circle_sigma(est, radius, circle_sigma_px)
 
 
 def _estimate(events, center, radius, t0_us, v0, v_fit, known: bool, method: str, sensor_size, min_events: int,
@@ -483,7 +522,9 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
     (``spin.fast.NARROW_SEARCH``); spin barely changes in flight.
     ``camera`` (``calib.Intrinsics`` of the event camera, or ``None``: orthographic) and
     ``circle`` (the track's circles are the detector's: ``"detected"``) go to
-    :func:`estimate_spin`, as do the other options.
+    :func:`estimate_spin`, as do the other options. Each window's ``sigma_px`` (the track's circle
+    uncertainty) goes into its estimate (:func:`with_circle_sigma`); whether an estimate seeds the
+    next window is decided on its confidence before that (the circle does not make it a worse start).
     """
     out = []
     previous = None  # (flight, window end µs, estimate) of the last estimate
@@ -501,7 +542,7 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
             if not skip_errors:
                 raise
             continue
-        est = replace(est, flight=int(win.flight))
-        out.append(est)
         previous = (win.flight, win.t_end_us, est)
+        sigma = getattr(win, "sigma_px", None)
+        out.append(replace(with_circle_sigma(est, win.radius_px, sigma), flight=int(win.flight)))
     return out

@@ -1,6 +1,7 @@
 """Right, or flagged: the cross-check on the halves of a window, the uncertainty, windows of many turns."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ import pytest
 import sim
 import spin
 import spin.fast as fast
-from spin.estimate import prepare
+from spin.estimate import CIRCLE_RATE_PER_PCT, prepare, with_circle_sigma
 
 
 def _axis_err_deg(axis, truth_axis):
@@ -172,3 +173,27 @@ def test_quarters_agreeing_only_through_the_whole_are_no_check(monkeypatch, ball
         assert res.confidence >= 0.5
     else:
         assert res.confidence <= 0.25
+
+
+def test_the_circle_s_uncertainty_goes_into_the_spin_s():
+    """A radius a few % too large lifts the events onto too large a sphere and moves the rate; given the
+    circle's uncertainty (the track's sigma_px) the estimate's sigma covers that, and a circle known
+    too roughly for the rate to be within 5 % takes the trust away."""
+    events, truth = sim.spinning_ball("volleyball", rps=100, axis=(0.3, -0.5, 0.8), radius_px=40, n_events=20_000,
+                                      seed=2, threshold=0.6)
+    c, r = truth["center"], truth["radius_px"]
+    exact, off = spin.estimate_spin(events, c, r), spin.estimate_spin(events, c, 1.05 * r)  # 2 px out
+    assert abs(exact.rps / truth["rps"] - 1) < 0.01 and abs(off.rps / exact.rps - 1) > 0.015
+    told = spin.estimate_spin(events, c, 1.05 * r, circle_sigma_px=0.04 * r)
+    rate_err_pct = abs(100 * (off.rps / truth["rps"] - 1))
+    assert 2 * off.rps_sigma_pct < rate_err_pct < 2 * told.rps_sigma_pct  # covered only with the circle's share
+    assert told.rps == off.rps and told.axis_sigma_deg > off.axis_sigma_deg  # the same answer, its sigma wider
+    unknown = spin.estimate_spin(events, c, r, circle_sigma_px=float("nan"))
+    assert (unknown.rps, unknown.confidence, unknown.rps_sigma_pct) == (exact.rps, exact.confidence, exact.rps_sigma_pct)
+    # the trust: full while the circle's share of the rate's sigma is at most 1.5 %, none from 2.5 %
+    sure = replace(exact, confidence=1.0)
+    for sigma_px, confidence in ((0.2, 1.0), (0.04 * r, 0.0), (2.0 / CIRCLE_RATE_PER_PCT * r / 100, 0.5)):
+        got = with_circle_sigma(sure, r, sigma_px)
+        assert got.confidence == pytest.approx(confidence)
+        rate_share = CIRCLE_RATE_PER_PCT * 100 * sigma_px / r
+        assert got.rps_sigma_pct == pytest.approx(math.hypot(exact.rps_sigma_pct, rate_share))
