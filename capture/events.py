@@ -265,7 +265,7 @@ class Track:
     sigma_px : ndarray of float32, shape (N,)
         Uncertainty of the circle (1 sigma), px: the true centre lies within ``2 sigma_px`` of
         ``(cx, cy)``, and the true radius within ``2 sigma_px`` of ``r``, on 95 % of rows
-        (:func:`detect.circle_sigma_px`). NaN where not measured (not given: tracks of older
+        (:func:`detect.event_detector.circle_sigma_px`). NaN where not measured (not given: tracks of older
         versions); 0 for a simulation's truth.
     """
 

@@ -275,6 +275,7 @@ class _Table:
         self.columns = dict(columns)
         self._grow_rows = grow_chunks * chunk  # 0: arrays sized to the committed rows at each append
         self.arrays = {}
+        created = []
         for name, (dtype, tail) in self.columns.items():
             if name in group:
                 self.arrays[name] = group[name]
@@ -283,12 +284,31 @@ class _Table:
                 self.arrays[name] = group.create_array(
                     name, shape=(0, *tail), chunks=(chunk, *tail), dtype=dtype,
                     filters=filters, compressors=compressors, fill_value=missing_value(name, dtype))
+                created.append(name)
         if "n_committed" not in group.attrs:  # a table made by an older version
             group.attrs["n_committed"] = 0
         self.n = int(group.attrs["n_committed"])
         self._encoders = {name: _ChunkCodec(arr) for name, arr in self.arrays.items() if _ChunkCodec.fits(arr)}
         self._partial: dict[str, np.ndarray] = {}  # column -> committed rows of its last, partly filled chunk
         self._keep_rows = 0  # rows a failed commit may have counted on disk: never trimmed away
+        if self.n:  # a column an older version did not write: its committed rows hold "not measured"
+            for name in created:
+                self._fill_missing(name)
+
+    def _fill_missing(self, name: str) -> None:
+        """Write :func:`capture.events.missing_value` into the committed rows of column ``name``, new in a
+        table that already has rows (written by an older version), chunk by chunk as appends write them."""
+        arr = self.arrays[name]
+        arr.resize((self.n, *arr.shape[1:]))
+        fill = np.full((self.n, *arr.shape[1:]), missing_value(name, arr.dtype), arr.dtype)
+        if name not in self._encoders:
+            arr[:] = fill
+            return
+        n, self.n = self.n, 0  # encoded from row 0
+        try:
+            self._partial[name] = self._write_chunks(name, arr, fill)
+        finally:
+            self.n = n
 
     def append(self, cols: Mapping[str, np.ndarray], **attrs) -> None:
         """Write rows, then commit them (and ``attrs``) in one metadata write. On an OSError

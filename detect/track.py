@@ -35,8 +35,9 @@ class SpinWindow:
     flight : int
         Flight number of the track rows the window came from.
     sigma_px : float
-        Uncertainty (1 sigma, px) of ``center`` and ``radius_px``: the larger of the two track rows
-        around ``t_start_us`` (:attr:`capture.events.Track.sigma_px`); NaN where not known.
+        Uncertainty (1 sigma, px) of ``center`` and ``radius_px``: that of the track row at
+        ``t_start_us``, else the larger of the two rows around it (:attr:`capture.events.Track.sigma_px`);
+        NaN where not known.
     """
 
     t_start_us: int
@@ -50,12 +51,12 @@ class SpinWindow:
 
 
 def _sigma_at(track: Track, t_us: int, flight: int) -> float:
-    """The larger ``sigma_px`` of flight ``flight``'s two rows that :meth:`Track.at` interpolates between
-    at ``t_us`` (the last at or before it, the first after it; the nearest one outside the flight's
-    span), px; NaN where neither is known."""
+    """The ``sigma_px`` of flight ``flight``'s rows that :meth:`Track.at` takes at ``t_us``: the rows at
+    ``t_us`` if there are any, else the larger of the last row before it and the first after it (the
+    nearest one outside the flight's span), px; NaN where none is known."""
     rows = track.select(track.flight == flight)
-    j = int(np.searchsorted(rows.t_us, t_us, side="right"))
-    near = rows.sigma_px[max(j - 1, 0):j + 1]
+    j0, j1 = int(np.searchsorted(rows.t_us, t_us, side="left")), int(np.searchsorted(rows.t_us, t_us, side="right"))
+    near = rows.sigma_px[j0:j1] if j1 > j0 else rows.sigma_px[max(j0 - 1, 0):j0 + 1]
     return float(np.nanmax(near)) if np.isfinite(near).any() else math.nan
 
 

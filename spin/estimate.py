@@ -526,6 +526,9 @@ def estimate_windows(windows: Iterable, *, method: str = "fast", skip_errors: bo
     uncertainty) goes into its estimate (:func:`with_circle_sigma`); whether an estimate seeds the
     next window is decided on its confidence before that (the circle does not make it a worse start).
     """
+    if "circle_sigma_px" in opts:
+        raise TypeError("estimate_windows takes each window's circle sigma from the window (SpinWindow.sigma_px), "
+                        "not circle_sigma_px")
     out = []
     previous = None  # (flight, window end µs, estimate) of the last estimate
     for win in windows:

@@ -67,8 +67,8 @@ def test_parts_hold_every_window_of_every_flight_with_what_it_needs(two_flights,
         full = list(spin_windows(events, whole, starts_us={p.flight: p.starts_us}, **WINDOW_OPTS))
         assert len(p.windows) == len(full)
         for a, b in zip(p.windows, full):
-            assert (a.t_start_us, a.t_end_us, a.center, a.radius_px, a.velocity_px_s, a.flight) == (
-                b.t_start_us, b.t_end_us, b.center, b.radius_px, b.velocity_px_s, b.flight)
+            assert (a.t_start_us, a.t_end_us, a.center, a.radius_px, a.velocity_px_s, a.flight, a.sigma_px) == (
+                b.t_start_us, b.t_end_us, b.center, b.radius_px, b.velocity_px_s, b.flight, b.sigma_px)
             np.testing.assert_array_equal(a.events, b.events)
         n_windows += len(full)
     assert n_windows >= 8
@@ -164,3 +164,28 @@ def test_events_near_the_ball_are_those_of_the_rows_circles():
     kept = {(int(a), int(b), int(c)) for a, b, c in zip(t[got], ev["x"][got], ev["y"][got])}
     on = [(int(tf), round(cx), round(cy)) in kept for tf, cx, cy in fixed]
     assert on == [False, True, True, False, True, True, False]
+
+
+def test_parts_cut_mid_flight_carry_the_whole_track_s_circle_sigma(tmp_path, monkeypatch):
+    """A flight longer than the tracker's smoothing lag is handed out while it goes on, a part's last
+    window at times starting on the last final row: each window's circle sigma (which the spin's
+    uncertainty and trust take in) is the one the whole track gives."""
+    import sim
+
+    rec = sim.flight(radius_px=14, width=W, height=H, duration_s=0.3, rps=20, start_px=(-6.0, 150.0),
+                     velocity_px_s=(1600.0, -100.0), seed=5, distractors=(), noise_rate_hz=1.0, hot_pixels=10)
+    path = tmp_path / "long"
+    with create_session(path, width=W, height=H) as w:
+        w.append_events(rec.events)
+    whole = track_ball(rec.events, width=W, height=H)
+    monkeypatch.setattr(replay_mod, "BATCH_EVENTS", 5000)
+    opts = ReplayOptions(window_us=2000, max_window_us=8000, step_us=2000, min_events=300, windows_per_unit=1)
+    parts = []
+    track_session(path, opts, progress=False, on_part=parts.append)
+    on_rows = 0
+    for p in parts:
+        full = list(spin_windows(rec.events, whole, starts_us={p.flight: p.starts_us}, window_us=2000, step_us=2000,
+                                 min_events=300, max_events=opts.max_events, max_window_us=8000))
+        assert [w.sigma_px for w in p.windows] == [w.sigma_px for w in full]
+        on_rows += sum(int(w.t_start_us) in set(whole.t_us.tolist()) for w in full)
+    assert len(parts) > 100 and on_rows > 50 and np.isfinite([w.sigma_px for p in parts for w in p.windows]).all()

@@ -293,6 +293,21 @@ def test_track_sigma_is_stored_and_reads_as_not_measured_where_an_older_version_
     assert tr["sigma_px"].shape == (3,) and np.isnan(tr["sigma_px"]).all() and list(tr["cx"]) == [0.0, 1.0, 2.0]
 
 
+@pytest.mark.parametrize("n_old", [3, S.TABLE_CHUNK + 5])
+def test_rows_appended_to_an_older_table_leave_its_rows_not_measured_in_the_new_column(tmp_path, n_old):
+    """A table of an older version lacks a column: appending creates it, and the rows already there
+    (over a whole chunk too) read as not measured, the store still opening."""
+    with S.create_session(tmp_path / "s", width=64, height=48) as w:
+        w.append_track({k: np.arange(n_old) for k in TRACK_COLUMNS})
+    root = zarr.open_group(str(tmp_path / "s"), mode="r+", use_consolidated=False)
+    del root["track"]["sigma_px"]
+    with S.update_session(tmp_path / "s") as w:
+        w.append_track({k: np.arange(100, 104) for k in TRACK_COLUMNS})
+    tr = S.open_session(tmp_path / "s").track()
+    assert len(tr["t_us"]) == n_old + 4 and list(tr["t_us"][-5:]) == [n_old - 1, 100, 101, 102, 103]
+    assert np.isnan(tr["sigma_px"][:n_old]).all() and list(tr["sigma_px"][n_old:]) == [100, 101, 102, 103]
+
+
 def test_chunks_encoded_by_the_store_are_the_chunks_zarr_writes(tmp_path, monkeypatch):
     """The store's own chunk encoder and Zarr's write path give stores Zarr reads the same."""
     ev = _events(2 * S.EVENT_CHUNK + 777, seed=11)

@@ -54,13 +54,13 @@ def test_spin_windows_follow_the_moving_circle():
         assert w.center[0] == pytest.approx(100 + 0.01 * w.t_start_us)
     assert list(spin_windows(ev, tr, window_us=2000, min_events=10**6)) == []
     assert all(np.isnan(w.sigma_px) for w in wins)  # a track without sigmas: not known
-    # with them, each window carries the larger of the two rows around its start (the last at or before
-    # it and the next; rows every 1,000 µs; a row not measured counts for nothing)
-    sigma = 1.0 - 0.1 * np.arange(len(tr))
-    sigma[4] = np.nan
+    # with them, each window carries the row at its start, else the larger of the two rows around it (as
+    # Track.at takes them; rows every 1,000 µs; a row not measured counts for nothing)
+    sigma = 0.1 * np.arange(len(tr))
+    sigma[5] = np.nan
     sig = Track.from_columns({**tr.columns(), "sigma_px": sigma})
     got = [w.sigma_px for w in spin_windows(ev, sig, window_us=2000, step_us=1500, min_events=100)]
-    np.testing.assert_allclose(got, [1.0, 0.9, 0.7, 0.5, 0.4, 0.3, 0.1])  # starts 0, 1500, ..., 9000
+    np.testing.assert_allclose(got, [0.0, 0.2, 0.3, 0.4, 0.6, 0.8, 0.9])  # starts 0, 1500, ..., 9000
 
 
 def test_windows_lengthen_where_the_ball_fires_few_events():
