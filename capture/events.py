@@ -179,6 +179,9 @@ TRACK_COLUMNS: dict[str, tuple[str, tuple]] = {
 and the circle's uncertainty (1 sigma, px: see :class:`Track`; NaN where not measured, e.g. sessions
 written before this column existed)."""
 
+TRACK_OPTIONAL = ("sigma_px",)
+"""Track columns that a table or track given by a caller may lack (then NaN: not measured)."""
+
 SPIN_COLUMNS: dict[str, tuple[str, tuple]] = {
     "t_start_us": ("<i8", ()), "t_end_us": ("<i8", ()), "axis": ("<f8", (3,)),
     "omega_rad_s": ("<f8", ()), "rps": ("<f8", ()), "velocity_px_s": ("<f8", (2,)),
@@ -303,9 +306,10 @@ class Track:
         if isinstance(columns, cls):
             return columns
         if isinstance(columns, Mapping):
-            return cls(**{name: columns[name] for name in TRACK_COLUMNS if name != "sigma_px" or name in columns})
+            return cls(**{name: columns[name] for name in TRACK_COLUMNS
+                          if name not in TRACK_OPTIONAL or name in columns})
         return cls(**{name: getattr(columns, name) for name in TRACK_COLUMNS
-                      if name != "sigma_px" or hasattr(columns, name)})
+                      if name not in TRACK_OPTIONAL or hasattr(columns, name)})
 
     def columns(self) -> dict[str, np.ndarray]:
         """The track as a table of :data:`TRACK_COLUMNS`."""

@@ -68,8 +68,8 @@ import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.codecs.numcodecs import Delta
 
-from capture.events import (EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRIGGER_DTYPE, concatenate, empty_table,
-                            in_order_mask, missing_value, spin_table, time_slice)
+from capture.events import (EVENT_DTYPE, SPIN_COLUMNS, TRACK_COLUMNS, TRACK_OPTIONAL, TRIGGER_DTYPE, concatenate,
+                            empty_table, in_order_mask, missing_value, spin_table, time_slice)
 
 # We knowingly use two Zarr extensions (the numcodecs Delta filter, consolidated metadata).
 warnings.filterwarnings("ignore", message="Numcodecs codecs are not in", category=UserWarning)
@@ -623,11 +623,11 @@ class SessionWriter:
     def append_track(self, track) -> None:
         """Append ball-track rows (mapping or object with the ``capture.events.TRACK_COLUMNS``; ``sigma_px``
         may be missing: NaN, not measured)."""
-        self._table("track", TRACK_COLUMNS).append(_columns_of(track, TRACK_COLUMNS, optional=("sigma_px",)))
+        self._table("track", TRACK_COLUMNS).append(_columns_of(track, TRACK_COLUMNS, TRACK_OPTIONAL))
 
     def write_track(self, track) -> None:
         """Replace the whole ball track."""
-        self._table("track", TRACK_COLUMNS).replace(_columns_of(track, TRACK_COLUMNS, optional=("sigma_px",)))
+        self._table("track", TRACK_COLUMNS).replace(_columns_of(track, TRACK_COLUMNS, TRACK_OPTIONAL))
 
     def append_spin(self, spin) -> None:
         """Append spin-estimate rows (mapping or object with the ``capture.events.SPIN_COLUMNS``)."""

@@ -50,11 +50,10 @@ class SpinWindow:
     sigma_px: float = math.nan
 
 
-def _sigma_at(track: Track, t_us: int, flight: int) -> float:
-    """The ``sigma_px`` of flight ``flight``'s rows that :meth:`Track.at` takes at ``t_us``: the rows at
+def _sigma_at(rows: Track, t_us: int) -> float:
+    """The ``sigma_px`` of a flight's ``rows`` that :meth:`Track.at` takes at ``t_us``: the rows at
     ``t_us`` if there are any, else the larger of the last row before it and the first after it (the
     nearest one outside the flight's span), px; NaN where none is known."""
-    rows = track.select(track.flight == flight)
     j0, j1 = int(np.searchsorted(rows.t_us, t_us, side="left")), int(np.searchsorted(rows.t_us, t_us, side="right"))
     near = rows.sigma_px[j0:j1] if j1 > j0 else rows.sigma_px[max(j0 - 1, 0):j0 + 1]
     return float(np.nanmax(near)) if np.isfinite(near).any() else math.nan
@@ -136,6 +135,7 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
     longest = max(window_us, max_window_us or window_us)
     starts_us = window_starts_us(track, step_us) if starts_us is None else starts_us
     for flight, starts in starts_us.items():
+        rows = track.select(track.flight == flight)  # (for the windows' circle sigma)
         for t0 in np.asarray(starts, np.int64).tolist():
             cx, cy, r, vx, vy = track.at(t0, flight=int(flight))
             circle = (t0, cx, cy, vx, vy, r + margin_px)
@@ -158,4 +158,4 @@ def spin_windows(events: np.ndarray, track: Track, *, window_us: int = 2000, ste
                     t1 = int(win["t"][inside[min_events - 1]]) + 1
                     n_short = int(np.searchsorted(win["t"][inside], t1))
             kept = np.take(win, inside[:n_short if max_events is None else min(n_short, max_events)])
-            yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight), _sigma_at(track, t0, int(flight)))
+            yield SpinWindow(t0, t1, kept, (cx, cy), r, (vx, vy), int(flight), _sigma_at(rows, t0))
