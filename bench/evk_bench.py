@@ -219,6 +219,7 @@ def _record_fifo(src: Path, out: Path, *, n_transfers: int, link_bytes_s: float,
             st = evk.record(cam, out, on_batch=_gil_holder(12.0))
     payload = out.read_bytes()[st.header_bytes:]
     return dict(lost=fake.dropped_bytes, sent=fake.bytes_served, jumps=st.time_jumps, host_drops=st.dropped_bytes,
+                risks=st.idle_risks, lossless=st.lossless,
                 identical=payload == fake.served_payload(), cpu_ms_mev=st.cpu_s * 1e3 / (n_events / 1e6),
                 gap_ms=st.max_read_gap_us / 1e3)
 
@@ -235,21 +236,22 @@ def loss(tmp: Path) -> None:
           f"({b_bytes / n_b * 100:.0f} MB/s) over USB3 ({USB3_LINK_BYTES_S / 1e6:.0f} MB/s); steady "
           f"{n_u / 1e6:.1f} Mev at 12 Mev/s ({u_rate / 1e6:.0f} MB/s) over USB2 ({USB2_LINK_BYTES_S / 1e6:.0f} MB/s)")
     print(f"  {'stream':8s} {'consumer':10s} {'requests':>8s} {'lost by device':>16s} {'host jumps':>10s} "
-          f"{'file = sent':>11s} {'max gap':>8s} {'CPU ms/Mev':>10s}")
+          f"{'idle risks':>10s} {'says lossless':>13s} {'file = sent':>11s} {'max gap':>8s} {'CPU ms/Mev':>10s}")
     for name, src, link, n_ev in (("bursty", bursty, USB3_LINK_BYTES_S, n_b), ("USB2", usb2, USB2_LINK_BYTES_S, n_u)):
         for consumer in ("live", "gil12ms"):
             for n in (1, 20, evk.Camera.n_transfers):
                 r = _record_fifo(src, tmp / "loss.raw", n_transfers=n, link_bytes_s=link, consumer=consumer,
                                  n_events=n_ev)
                 print(f"  {name:8s} {consumer:10s} {n:8d} {r['lost'] / 1e6:11.2f} MB "
-                      f"({r['lost'] / (r['lost'] + r['sent']):4.0%}) {r['jumps']:10d} {str(r['identical']):>11s} "
+                      f"({r['lost'] / (r['lost'] + r['sent']):4.0%}) {r['jumps']:10d} "
+                      f"{r['risks']:10d} {str(r['lossless']):>13s} {str(r['identical']):>11s} "
                       f"{r['gap_ms']:6.1f}ms {r['cpu_ms_mev']:10.0f}")
     print(f"  highest burst rate with no loss, {evk.Camera.n_transfers} requests, live consumer:")
     for speed in (1.0, 1.05, 1.1):
         r = _record_fifo(bursty, tmp / "loss.raw", n_transfers=evk.Camera.n_transfers, link_bytes_s=USB3_LINK_BYTES_S,
                          consumer="live", n_events=n_b, speed=speed)
         print(f"    bursts at {100 * speed:5.0f} Mev/s ({b_bytes / n_b * 100 * speed:4.0f} MB/s): lost "
-              f"{r['lost'] / 1e6:.2f} MB, file = sent {r['identical']}")
+              f"{r['lost'] / 1e6:.2f} MB, says lossless {r['lossless']}, file = sent {r['identical']}")
 
 
 if __name__ == "__main__":

@@ -90,14 +90,26 @@ def test_one_read_at_a_time_loses_data_under_a_gil_holder_and_queued_transfers_d
     old, old_stats = _record(tmp_path, busy_stream, 1, hold)
     assert old_stats.n_transfers == 1
     assert old.dropped_bytes > 0  # the device's FIFO overflowed between reads
-    assert old_stats.time_jumps > 0 and not old_stats.lossless  # and the recording says so
+    # and the recording says so: the endpoint went without a request for the holds. (Its time base
+    # shows a jump only where a loss swallowed a whole 4.096 ms period: a shorter one resumed on
+    # the next TIME_HIGH word leaves the stream well-formed, in about a third of these runs.)
+    assert old_stats.idle_risks > 0 and not old_stats.lossless
     # what reached the disk is exactly what the device sent, holes and all
     assert payload_of(tmp_path / "rec1.raw") == old.served_payload()
 
     new, new_stats = _record(tmp_path, busy_stream, evk.Camera.n_transfers, hold)
     assert new_stats.n_transfers == evk.Camera.n_transfers > 1
-    assert new.dropped_bytes == 0 and new_stats.lossless
+    assert new.dropped_bytes == 0 and new_stats.idle_risks == 0 and new_stats.lossless
     assert payload_of(tmp_path / f"rec{evk.Camera.n_transfers}.raw") == payload_of(busy_stream)
+
+
+def test_a_few_queued_requests_under_a_gil_holder_lose_data_and_the_recording_says_so(tmp_path, busy_stream):
+    """4 x 128 KiB of requests and the 256 KiB FIFO hold 10 ms of this stream: each 12 ms hold
+    loses data. The reader finds every request complete after such a spell and counts it."""
+    fake, stats = _record(tmp_path, busy_stream, 4, _holder(12.0))
+    assert stats.n_transfers == 4 and fake.dropped_bytes > 0
+    assert stats.idle_risks > 0 and not stats.lossless
+    assert payload_of(tmp_path / "rec4.raw") == fake.served_payload()
 
 
 def test_a_request_that_times_out_with_data_keeps_it(tmp_path, busy_stream):
@@ -274,11 +286,14 @@ def test_libusb_queue_against_a_stub_libusb(monkeypatch):
     bufs = [array.array("B", bytes(16)) for _ in range(4)]
     for b in bufs:
         q.submit(b, 100)
-    got = [q.reap(1.0) for _ in range(3)]
+    assert q.incomplete == 4
+    got = [q.reap(0)]  # a zero timeout still handles the events that are due, once
+    got += [q.reap(1.0) for _ in range(2)]
     assert [d.buffer is b for d, b in zip(got, bufs)] == [True] * 3  # in submission order
     assert [bytes(d.buffer[:d.nbytes]) for d in got] == [b"first.", b"second", b"third!!"]
     assert [d.status for d in got] == ["completed"] * 3
-    assert q.reap(0.05) is None and q.pending == 1  # nothing more arrived
+    assert q.reap(0.05) is None and q.pending == 1 and q.incomplete == 1  # nothing more arrived
+    assert q.reap(0) is None
     q.cancel()
     done = q.reap(1.0)
     assert done.status == "cancelled" and bytes(done.buffer[:done.nbytes]) == b"part" and q.pending == 0

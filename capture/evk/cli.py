@@ -100,5 +100,6 @@ def _record(args) -> None:
             signal.signal(signal.SIGINT, previous_handler)
     print(f"{stats.payload_bytes} bytes in {stats.stream_s:.1f} s to {stats.raw_path} "
           f"({stats.stop_reason}, {stats.n_transfers} USB requests in flight); dropped {stats.dropped_bytes} B, "
+          + (f"{stats.idle_risks} possible unseen losses (no USB request pending too long), " if stats.idle_risks else "")
           + (f"time-base jumps {stats.time_jumps}" if stats.time_base_monitored
              else f"time base not checked for gaps ({cam.info.format})"))

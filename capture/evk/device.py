@@ -347,6 +347,11 @@ class Camera:
     read_bytes = 1 << 20
     """Size of each synchronous read, where requests cannot be queued (``n_transfers`` 1, or
     a pyusb backend other than libusb-1.0); rounded to a multiple of wMaxPacketSize."""
+    device_buffer_bytes = 256 << 10
+    """The EVK's buffer between sensor and USB, bytes [uncertain: its FX3 bridge has 512 KiB of
+    SRAM shared with its firmware, DMA buffers a few hundred KiB]. A spell with no request on the
+    endpoint that could have filled half of it is reported as a possible loss. A backend standing
+for a device (a fake) may state its own as ``device_buffer_bytes`` (``None``: unbounded)."""
     read_timeout_ms = 100
     """Per-request timeout (HAL value); an idle sensor just produces timeouts."""
     queue_bytes = 256 << 20
@@ -658,7 +663,9 @@ class Camera:
         eos = getattr(self._backend, "end_of_stream", None)
         self.reader = Reader(dev, ep, read_bytes=size, timeout_ms=self.read_timeout_ms,
                              capacity_bytes=self.queue_bytes, end_of_stream=eos, name=self._usb.where,
-                             transfers=queue, n_transfers=self.n_transfers)
+                             transfers=queue, n_transfers=self.n_transfers,
+                             device_buffer_bytes=getattr(self._backend, "device_buffer_bytes",
+                                                         self.device_buffer_bytes))
         self.reader.start()
         try:
             self.sensor.start()

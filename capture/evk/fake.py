@@ -370,6 +370,12 @@ class FakeEVK(usb.backend.IBackend):
         """True once the whole payload has been served (nothing more will come)."""
         return self._data.exhausted
 
+    @property
+    def device_buffer_bytes(self) -> int | None:
+        """The fake's FIFO, bytes (``None``: unbounded, it never loses data); the driver takes
+        it in place of ``Camera.device_buffer_bytes`` to judge spells without a request."""
+        return self._data.fifo_bytes
+
     # ---- enumeration and descriptors ----------------------------------------------------
     def _check_present(self):
         if self._gone or self._data.gone:
@@ -664,6 +670,11 @@ class FakeQueue:
     @property
     def pending(self) -> int:
         return len(self._order)
+
+    @property
+    def incomplete(self) -> int:
+        """Requests still on the endpoint (submitted, not complete), as of the last call."""
+        return sum(req.status is None for req, _ in self._order)
 
     def submit(self, buffer, timeout_ms: int) -> None:
         fake = self._fake

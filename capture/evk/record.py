@@ -38,6 +38,10 @@ class RecordStats:
         ``(payload offset, dropped bytes)`` for every overflow gap in the RAW file.
     time_jumps : int
         EVT3 TIME_HIGH discontinuities (lost data on the link, or idle periods [uncertain]).
+    idle_risks : int
+        Spells with no USB request on the data endpoint, long enough at the stream's rate to
+        overflow the device's buffer (``Camera.device_buffer_bytes``): data may have been lost
+        there without any trace in the stream (see :class:`capture.evk.stream.Reader`).
     time_base_monitored : bool
         Whether the stream's time base is checked for discontinuities (EVT3); an EVT 2.1
         stream is not, so data lost on the link would go unseen there.
@@ -77,6 +81,7 @@ class RecordStats:
     overflows: int = 0
     gaps: list = field(default_factory=list)
     time_jumps: int = 0
+    idle_risks: int = 0
     time_base_monitored: bool = True
     decoder_stats: dict = field(default_factory=dict)
     n_transfers: int = 1
@@ -95,9 +100,11 @@ class RecordStats:
 
     @property
     def lossless(self) -> bool:
-        """No host-side drop and no time-base discontinuity detected (the latter checked in
-        EVT3 only: see :attr:`time_base_monitored`)."""
-        return self.dropped_bytes == 0 and self.time_jumps == 0 and self.error is None
+        """No host-side drop, no spell without a USB request that could have overflowed the
+        device, and no time-base discontinuity (the latter checked in EVT3 only: see
+        :attr:`time_base_monitored`)."""
+        return (self.dropped_bytes == 0 and self.idle_risks == 0 and self.time_jumps == 0
+                and self.error is None)
 
 
 def _header(camera) -> bytes:
@@ -204,7 +211,8 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         Wall-clock limit on streaming, seconds.
     stats : RecordStats, optional
         Filled in as the recording goes, for a caller that watches it from another thread
-        (``decode_backlog_bytes``, ``overflows``, ``dropped_bytes``, ``time_jumps``); a new one
+        (``decode_backlog_bytes``, ``overflows``, ``dropped_bytes``, ``time_jumps``,
+        ``idle_risks``); a new one
         otherwise.
 
     Returns
@@ -259,6 +267,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                         monitor.feed(data)
                         stats.time_jumps = monitor.jumps
                     reader.release(item)
+                    stats.idle_risks = reader.n_idle_risks  # kept current for a caller watching
                     if decode is not None:
                         decode.written(stats.payload_bytes)
                 if not stats.stop_reason:
@@ -291,6 +300,7 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
                 stats.queue_peak_bytes = reader.queue.peak_bytes
                 stats.read_gap_us = reader.gap_s / max(reader.n_reads, 1) * 1e6
                 stats.max_read_gap_us = reader.max_gap_s * 1e6
+                stats.idle_risks = reader.n_idle_risks
             if monitor is not None:
                 stats.time_jumps = monitor.jumps
     if decode is not None and decode.error is not None:
@@ -308,9 +318,10 @@ def record(camera, raw_path, *, on_batch=None, stop: threading.Event | None = No
         raise err
     if not stats.stop_reason:
         stats.stop_reason = "end_of_stream" if reader.end_of_stream else "stop"
-    if stats.dropped_bytes or stats.time_jumps:
-        log.warning("recording %s: %d bytes dropped (queue overflow), %d time-base jumps",
-                    raw_path, stats.dropped_bytes, stats.time_jumps)
+    if stats.dropped_bytes or stats.time_jumps or stats.idle_risks:
+        log.warning("recording %s: %d bytes dropped (queue overflow), %d time-base jumps, %d spells without "
+                    "a USB request long enough to overflow the device (possible unseen losses)",
+                    raw_path, stats.dropped_bytes, stats.time_jumps, stats.idle_risks)
     return stats
 
 

@@ -30,6 +30,14 @@ DRAIN_TIMEOUT_MS = 10
 DRAIN_MAX_READS = 256
 CANCEL_WAIT_S = 2.0
 """How long cancelled requests may take to come back before the reader gives up on them."""
+RATE_WINDOW_S = 0.1
+"""The stream's recent byte rate is measured over this much wall time of completed requests."""
+RATE_MARGIN = 2.0
+"""The device may produce this many times the stream's recent byte rate (a burst, or a rate measured
+on a stream already losing data), up to :data:`LINK_MAX_BYTES_S`."""
+LINK_MAX_BYTES_S = 400e6
+"""Fastest bulk-IN delivery of a SuperSpeed link, bytes/s (5 Gb/s less its coding and protocol):
+a request of n bytes cannot complete sooner than n / this after it was submitted."""
 
 _ABANDONED: list = []
 """Transfer queues whose requests never came back after a cancel: kept alive for good, so that
@@ -155,10 +163,26 @@ class Reader(threading.Thread):
         synchronously.
     n_transfers : int
         Requests kept in flight with ``transfers``.
+    device_buffer_bytes : int, optional
+        The device's own buffer between sensor and USB, bytes; with it, spells without a
+        request on the endpoint long enough to overflow it are counted (:attr:`n_idle_risks`).
+
+    Attributes
+    ----------
+    n_idle_risks : int
+        Spells in which the endpoint may have had no request space left for long enough to
+        overflow the device's buffer: data may have been lost there without a trace in the
+        stream (a loss within one EVT3 time-base period that resumes on a TIME_HIGH word leaves
+        it well-formed). When a request completed is not observable from Python (a thread may
+        wait for the GIL), so each spell is bounded from the safe side: queued requests are
+        counted just before each reap, and an interval counts only where none of those
+        submitted before it is still incomplete; a synchronous read may have completed as soon
+        as its bytes could cross the link.
     """
 
     def __init__(self, dev, ep: int, *, read_bytes: int, timeout_ms: int, capacity_bytes: int,
-                 end_of_stream=None, name: str = "EVK", transfers=None, n_transfers: int = 64):
+                 end_of_stream=None, name: str = "EVK", transfers=None, n_transfers: int = 64,
+                 device_buffer_bytes: int | None = None):
         super().__init__(name=f"evk-reader-{name}", daemon=True)
         self.dev = dev
         self.ep = ep
@@ -178,6 +202,10 @@ class Reader(threading.Thread):
         self.end_of_stream = False
         self.gap_s = 0.0
         self.max_gap_s = 0.0
+        self.device_buffer_bytes = device_buffer_bytes
+        self.n_idle_risks = 0
+        self._recent: deque = deque()  # (clock s, bytes_read) at recent completions with data
+        self._at_risk = False
         self.transfers = transfers
         self.n_transfers = int(n_transfers) if transfers is not None else 1
         self.abandoned = False
@@ -224,6 +252,44 @@ class Reader(threading.Thread):
         else:
             self._run_sync()
 
+    def _arrived(self, t_s: float) -> None:
+        """Note a completion with data at clock time ``t_s`` (after :meth:`_hand_over`)."""
+        recent = self._recent
+        recent.append((t_s, self.bytes_read))
+        while len(recent) > 2 and recent[1][0] < t_s - RATE_WINDOW_S:
+            recent.popleft()
+
+    def _space_ran_out(self, t_from_s: float, t_to_s: float, space_bytes: float = 0.0,
+                       rate_bytes_s: float | None = None) -> None:
+        """From ``t_from_s`` to ``t_to_s`` (clock s) the endpoint was given no new request and
+        had at most ``space_bytes`` of request space: once that is filled (at the earliest after
+        ``space_bytes`` / the rate) the device can only buffer. Count a possible loss if, at
+        ``rate_bytes_s`` (default :data:`RATE_MARGIN` times the stream's recent rate, at most
+        :data:`LINK_MAX_BYTES_S`), what it buffered meanwhile could have filled its buffer (one
+        count per run of such intervals)."""
+        recent = self._recent
+        if self.device_buffer_bytes is None or (rate_bytes_s is None and len(recent) < 2):
+            return
+        if rate_bytes_s is None:
+            (t0, b0), (t1, b1) = recent[0], recent[-1]
+            rate_bytes_s = min(RATE_MARGIN * (b1 - b0) / (t1 - t0), LINK_MAX_BYTES_S) if t1 > t0 else 0.0
+        idle_s = t_to_s - t_from_s - (space_bytes / rate_bytes_s if rate_bytes_s else 0.0)
+        risky = idle_s > 0 and rate_bytes_s * idle_s > self.device_buffer_bytes
+        self.n_idle_risks += risky and not self._at_risk
+        self._at_risk = risky
+
+    def _count_space(self, t_seen: float, space: float, fresh: int, t_now: float) -> tuple[float, float, int]:
+        """Count the queued requests still incomplete at ``t_now``; since ``t_seen`` the endpoint
+        had at most ``space`` bytes of requests, ``fresh`` of them submitted after ``t_seen``.
+        One submitted before ``t_seen`` and still incomplete had space on the endpoint all along;
+        otherwise it may have run out. Returns the new ``(t_seen, space, fresh)``."""
+        incomplete = self.transfers.incomplete
+        if incomplete > fresh:
+            self._at_risk = False
+        else:  # how fast the device produced meanwhile is unknown: at most what the link carries
+            self._space_ran_out(t_seen, t_now, space, LINK_MAX_BYTES_S)
+        return t_now, incomplete * self.read_bytes, 0
+
     def _hand_over(self, buf, n: int, *, by_reference: bool = True) -> bool:
         """Queue ``n`` bytes read into ``buf``; True if the queue now owns ``buf`` (the caller
         then needs another buffer). A result under half the buffer is copied out (so that a
@@ -261,6 +327,9 @@ class Reader(threading.Thread):
                         self.error = usb_error(exc, where)
                         self._stop_event.set()
                     break
+            # when the requests were last counted, the space they had at most (bytes) and how many
+            # were submitted since
+            t_seen, space, fresh = clock(), q.pending * self.read_bytes, 0
             while q.pending:
                 if self._stop_event.is_set() and cancel_by is None:
                     q.cancel()
@@ -269,7 +338,15 @@ class Reader(threading.Thread):
                     raise EvkError(f"{q.pending} USB requests of {self.camera_name} still pending "
                                    f"{CANCEL_WAIT_S:.0f} s after they were cancelled")
                 try:
-                    done: Done | None = q.reap(0.05)
+                    # a request incomplete when reap returns was incomplete when it was called: the
+                    # requests are counted as of then (this thread may wait for the GIL in between)
+                    t_call = clock()
+                    done: Done | None = q.reap(0)
+                    if done is None:  # the oldest is incomplete
+                        if cancel_by is None:
+                            t_seen, space, fresh = self._count_space(t_seen, space, fresh, t_call)
+                        t_call = clock()
+                        done = q.reap(0.05)
                 except usb.core.USBError as exc:  # no more completions can be had
                     if self.error is None:
                         self.error = usb_error(exc, where)
@@ -280,6 +357,8 @@ class Reader(threading.Thread):
                 t_done = clock()
                 if n or status == "completed":
                     self.n_reads += 1
+                if cancel_by is None:
+                    t_seen, space, fresh = self._count_space(t_seen, space, fresh, t_call)
                 spare = buf
                 if n:  # whatever the status, the first n bytes arrived (libusb): keep them
                     spare = self._buffer()
@@ -289,6 +368,7 @@ class Reader(threading.Thread):
                     elif not self._hand_over(buf, n):
                         self._free.append(spare)
                         spare = buf
+                    self._arrived(t_done)
                 if status == "timed_out" and not n:
                     self.n_timeouts += 1
                     if eos is not None and eos():
@@ -307,9 +387,11 @@ class Reader(threading.Thread):
                         self._stop_event.set()
                         self._free.append(spare)
                         continue
-                    gap = clock() - t_done
+                    t_submitted = clock()
+                    gap = t_submitted - t_done
                     self.gap_s += gap
                     self.max_gap_s = max(self.max_gap_s, gap)
+                    space, fresh = space + self.read_bytes, fresh + 1
                 else:
                     self._free.append(spare)
         except usb.core.USBError as exc:
@@ -334,7 +416,8 @@ class Reader(threading.Thread):
         read, ep, timeout, size = self.dev.read, self.ep, self.timeout_ms, self.read_bytes
         queue, eos, clock = self.queue, self._eos, time.perf_counter
         scratch = array.array("B", bytes(size))  # used only when every pooled buffer is queued
-        t_done = None
+        t_done = None  # the last read's return, and the earliest it can have completed
+        t_free = None
         try:
             buf = None
             while not self._stop_event.is_set():
@@ -345,6 +428,9 @@ class Reader(threading.Thread):
                 if t_done is not None:
                     self.gap_s += t_call - t_done
                     self.max_gap_s = max(self.max_gap_s, t_call - t_done)
+                    # no request on the endpoint since the last one completed: when that was is
+                    # unknown (its thread may have waited for the GIL), at the earliest t_free
+                    self._space_ran_out(t_free, t_call)
                 try:
                     n = read(ep, target, timeout)
                 except usb.core.USBTimeoutError:
@@ -358,6 +444,7 @@ class Reader(threading.Thread):
                     self.error = usb_error(exc, f"reading the data endpoint of {self.camera_name}")
                     break
                 t_done = clock()
+                t_free = t_call + n / LINK_MAX_BYTES_S
                 self.n_reads += 1
                 if not n:
                     continue
@@ -365,6 +452,7 @@ class Reader(threading.Thread):
                     self._hand_over(scratch, n, by_reference=False)
                 elif self._hand_over(buf, n):
                     buf = None  # now owned by the queue; take another from the pool
+                self._arrived(t_done)
         except Exception as exc:  # noqa: BLE001 - reported to the consumer, never lost
             self.error = EvkError(f"reader thread of {self.camera_name} failed: {exc!r}")
         finally:

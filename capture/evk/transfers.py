@@ -128,6 +128,11 @@ class LibusbQueue:
         """Requests submitted and not yet reaped."""
         return len(self._order)
 
+    @property
+    def incomplete(self) -> int:
+        """Requests still on the endpoint (submitted, not complete), as of the last event handling."""
+        return len(self._order) - len(self._done)
+
     def submit(self, buffer, timeout_ms: int) -> None:
         """Queue a bulk-IN request filling ``buffer`` (``array.array('B')``)."""
         lib = self._lib
@@ -153,21 +158,24 @@ class LibusbQueue:
         self._order.append((t, buffer))
 
     def reap(self, timeout_s: float) -> Done | None:
-        """The oldest request once complete, or ``None`` after ``timeout_s`` seconds."""
+        """The oldest request once complete, or ``None`` after ``timeout_s`` seconds (0: handle
+        the events that are due once, without waiting)."""
         if not self._order:
             return None
         lib = self._lib
         t, buffer = self._order[0]
         key = ctypes.addressof(t.contents)
         deadline = time.monotonic() + timeout_s
+        handled = False
         while key not in self._done:
             left = deadline - time.monotonic()
-            if left <= 0:
+            if left <= 0 and handled:
                 return None
             tv = lib.timeval(0, max(int(min(left, 0.01) * 1e6), 1))  # short: another thread may reap ours
             rc = lib.libusb_handle_events_timeout_completed(self._ctx, ctypes.byref(tv), None)
             if rc and rc != -10:  # LIBUSB_ERROR_INTERRUPTED: just go round again
                 raise _usb_error(rc, "handling USB events")
+            handled = True
         self._done.discard(key)
         self._order.popleft()
         c = t.contents

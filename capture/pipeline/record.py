@@ -195,6 +195,7 @@ class _Status(threading.Thread):
                 pr = self.progress
                 line += (f"drops {pr.overflows} ({pr.dropped_bytes / 1e6:.1f} MB lost)  " if pr.overflows
                          else "drops 0  ") + (f"time jumps {pr.time_jumps}  " if pr.time_jumps else "")
+                line += f"possible USB losses {pr.idle_risks}  " if pr.idle_risks else ""
             line += f"disk {free / 2**30:.1f} GiB free  "
             st = self.live.state
             line += ball_status(st) + "  "
@@ -328,6 +329,9 @@ def record_session(settings: RecordSettings, stop: threading.Event | None = None
             if stats.overflows:
                 messages.append(f"{stats.overflows} host-queue overflow(s): {stats.dropped_bytes} bytes "
                                 "lost (gaps listed in the session attrs)")
+            if stats.idle_risks:
+                messages.append(f"{stats.idle_risks} spell(s) without a USB request long enough to overflow the "
+                                "camera's buffer: data may have been lost there unseen (the machine was too busy)")
             if stats.time_jumps:
                 messages.append(f"{stats.time_jumps} time-base discontinuities in the event stream "
                                 "(lost data on the link, or idle periods)")
@@ -425,6 +429,7 @@ def _finalise(writer, live, review, stats, reason: str, lock: threading.Lock, me
         recording.update(overflows=int(stats.overflows), dropped_bytes=int(stats.dropped_bytes),
                          gaps=[list(map(int, g)) for g in stats.gaps],
                          time_jumps=int(stats.time_jumps) if stats.time_base_monitored else None,
+                         idle_risks=int(stats.idle_risks),
                          payload_bytes=int(stats.payload_bytes), usb_transfers=int(stats.n_transfers))
     if raw_write_error:
         recording["raw_write_error"] = " ".join(raw_write_error.split())
