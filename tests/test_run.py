@@ -27,6 +27,7 @@ def test_fake_recording_keeps_every_event_and_byte(shared_raw_dir, tmp_path):
     s = open_session(out)
     assert s.attrs["sensor"]["crop"] == [0, 0, 1280, 720]  # the settings the sensor recorded with
     assert s.attrs["closed"] and s.attrs["recording"]["stop_reason"] == "end_of_stream"
+    assert s.attrs["recording"]["idle_risks"] == 0  # (the fake's FIFO is unbounded: it cannot lose)
     assert s.attrs["ball"] == {"type": "tennis", "diameter_m": 0.067}  # for the report's distances and speeds
     assert np.array_equal(s.events(), ref.events)
     assert np.array_equal(s.triggers(), ref.triggers)
@@ -187,7 +188,8 @@ def test_the_status_line_shows_drops_and_time_jumps_as_they_happen(tmp_path, cap
     from capture.pipeline.live import LiveState
     from capture.pipeline.record import RecordSettings, _Status
 
-    progress = evk.RecordStats(raw_path=tmp_path / "events.raw", overflows=3, dropped_bytes=1_200_000, time_jumps=2)
+    progress = evk.RecordStats(raw_path=tmp_path / "events.raw", overflows=3, dropped_bytes=1_200_000, time_jumps=2,
+                               idle_risks=4)
     live = SimpleNamespace(state=LiveState())
     status = _Status(RecordSettings(out=tmp_path), {"events": 0}, live, threading.Event(), period_s=0.01,
                      tick_s=0.005, progress=progress)
@@ -196,4 +198,4 @@ def test_the_status_line_shows_drops_and_time_jumps_as_they_happen(tmp_path, cap
     status.done.set()
     status.join()
     err = capsys.readouterr().err
-    assert "drops 3 (1.2 MB lost)" in err and "time jumps 2" in err
+    assert "drops 3 (1.2 MB lost)" in err and "time jumps 2" in err and "possible USB losses 4" in err
