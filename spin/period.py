@@ -53,8 +53,7 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
     span_s = float(ev.s_s[-1] - ev.s_s[0])
     if span_s < min_turns * min_period_s:
         return None
-    # bins at most a sixth of the shortest period, up to ``max_bins``
-    n_bins = int(np.clip(6 * span_s / min_period_s, n_bins, max_bins))
+    n_bins = _n_bins(span_s, min_period_s, n_bins, max_bins)
     bin_s = span_s / n_bins
     lo, hi = max(3, int(min_period_s / bin_s)), int(n_bins / min_turns)
     if hi <= lo + 1:
@@ -87,6 +86,69 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
         lag = _peak(a, j) / m
         m *= 2
     return float(lag * bin_s), float(a[k])
+
+
+FLIGHT_INNER = 0.85
+"""Share of the radius inside which a flight's events count: the silhouette's edge fires as the
+ball moves whatever it turns, and in a whole flight it drowns a sparse texture's repeat."""
+FLIGHT_MAX_BINS = 8192
+FLIGHT_MAX_EVENTS = 400_000
+
+
+def flight_period(t_us, x_px, y_px, p, cx_px, cy_px, r_px, *, max_rps: float = 1200.0,
+                  inner: float = FLIGHT_INNER, max_events: int = FLIGHT_MAX_EVENTS) -> tuple[float, float, float] | None:
+    """The period over which a ball's image repeats through a flight, for any texture.
+
+    Each event is placed on the disc of the track at its own time (so the ball may fall, curve,
+    approach or recede: coordinates are scaled by the radius at that time), and
+    :func:`image_period` looks for the repeat.  A flight spans many turns, so the period is
+    found where a window's own search fails on a sparse texture; the rate of one turn per
+    period (or a fold of it, see :func:`turn_speeds`) follows.
+
+    Parameters
+    ----------
+    t_us, x_px, y_px, p : ndarray (N,)
+        Time-sorted events (µs, px, polarity 0/1) of the flight.
+    cx_px, cy_px, r_px : ndarray (N,)
+        The ball's circle at each event's time (px), e.g. the track interpolated.
+    max_rps : float
+        Fastest spin looked for (rev/s): the shortest period is half a turn at it.
+    inner : float
+        Only events within ``inner`` times the radius count (:data:`FLIGHT_INNER`).
+    max_events : int
+        More such events are thinned evenly to this many (the repeat shows in far fewer).
+
+    Returns
+    -------
+    (period_s, peak, bin_s) or None
+        The period (s), the height of its autocorrelation peak (0..1) and the time bin (s) it
+        was measured on; None where the image shows no repeat.
+    """
+    t_us = np.asarray(t_us, np.int64)
+    dx = np.asarray(x_px, np.float64) - cx_px
+    dy = np.asarray(y_px, np.float64) - cy_px
+    r = np.asarray(r_px, np.float64)
+    keep = np.flatnonzero(dx * dx + dy * dy <= (inner * r) ** 2)
+    keep = keep[::-(-len(keep) // max_events)] if len(keep) > max_events else keep
+    if len(keep) < 2:
+        return None
+    r_ref = float(np.median(r[keep]))
+    scale = r_ref / r[keep]
+    s = ((t_us[keep] - t_us[keep[0]]) * 1e-6)
+    weight = np.where(np.asarray(p)[keep] > 0, 1.0, -1.0)
+    ev = BallEvents((dx[keep] * scale).astype(np.float32), (dy[keep] * scale).astype(np.float32), s,
+                    np.zeros_like(s), weight, r_ref)
+    min_period_s = 0.5 / max_rps
+    found = image_period(ev, (0.0, 0.0), min_period_s=min_period_s, max_bins=FLIGHT_MAX_BINS)
+    if found is None:
+        return None
+    return found[0], found[1], float(s[-1]) / _n_bins(float(s[-1]), min_period_s, 512, FLIGHT_MAX_BINS)
+
+
+def _n_bins(span_s: float, min_period_s: float, n_bins: int, max_bins: int) -> int:
+    """Time bins over ``span_s``: at most a sixth of the shortest period each, at least ``n_bins`` and
+    at most ``max_bins`` of them."""
+    return int(np.clip(6 * span_s / min_period_s, n_bins, max_bins))
 
 
 def _local_peak(a: np.ndarray, lag: float) -> int | None:

@@ -112,6 +112,38 @@ def test_a_few_queued_requests_under_a_gil_holder_lose_data_and_the_recording_sa
     assert payload_of(tmp_path / "rec4.raw") == fake.served_payload()
 
 
+def test_a_reaper_slower_than_the_stream_loses_data_and_the_recording_says_so(tmp_path, busy_stream, monkeypatch):
+    """Each completion takes the reader 0.8 ms (a slow machine), 8 requests of 128 KiB in flight: at
+    37 MB/s a request fills every 3.5 ms, so it keeps up, with nothing lost or flagged; at 225 MB/s
+    it cannot, and loses data steadily, in no long spell, mostly without time-base jumps: the
+    recording must still say so."""
+    from capture.evk import stream
+
+    arrived = stream.Reader._arrived
+
+    def slow(self, t_s):
+        end = time.perf_counter() + 0.0008
+        while time.perf_counter() < end:
+            pass
+        arrived(self, t_s)
+
+    monkeypatch.setattr(stream.Reader, "_arrived", slow)
+    for speed in (0.5, 3.0):
+        fake = FakeEVK(busy_stream, pace="recorded", speed=speed, fifo_bytes=EVK_FIFO_BYTES, link_bytes_s=350e6)
+        with evk.open(backend=fake) as cam:
+            cam.n_transfers = 8
+            stats = evk.record(cam, tmp_path / f"x{speed}.raw")
+        if speed < 1:
+            assert fake.dropped_bytes == 0 and stats.idle_risks == 0 and stats.lossless
+        else:
+            assert fake.dropped_bytes > 0 and stats.idle_risks > 0 and not stats.lossless
+
+
+def test_a_possible_loss_alone_makes_a_recording_not_lossless(tmp_path):
+    assert evk.RecordStats(raw_path=tmp_path / "r.raw").lossless
+    assert not evk.RecordStats(raw_path=tmp_path / "r.raw", idle_risks=1).lossless
+
+
 def test_a_request_that_times_out_with_data_keeps_it(tmp_path, busy_stream):
     fake = FakeEVK(busy_stream, pace="recorded", speed=0.01)  # ~0.9 MB/s: 128 KiB takes > 100 ms
     with evk.open(backend=fake) as cam:
@@ -283,22 +315,27 @@ def test_libusb_queue_against_a_stub_libusb(monkeypatch):
     monkeypatch.setattr(transfers, "_bindings", lambda lib: stub)
     q = transfers.LibusbQueue(SimpleNamespace(lib=None, ctx=ctypes.c_void_p(0x1000)),
                               SimpleNamespace(handle=ctypes.c_void_p(0x2000)), 0x81)
-    bufs = [array.array("B", bytes(16)) for _ in range(4)]
+    bufs = [array.array("B", bytes(16)) for _ in range(5)]
     for b in bufs:
         q.submit(b, 100)
-    assert q.incomplete == 4
+    assert q.incomplete == 5
     got = [q.reap(0)]  # a zero timeout still handles the events that are due, once
-    got += [q.reap(1.0) for _ in range(2)]
-    assert [d.buffer is b for d, b in zip(got, bufs)] == [True] * 3  # in submission order
-    assert [bytes(d.buffer[:d.nbytes]) for d in got] == [b"first.", b"second", b"third!!"]
-    assert [d.status for d in got] == ["completed"] * 3
+    got.append(q.reap(1.0))
+    q._handle_events(0.0)  # (another thread handles libusb's events: the third completes, unreaped)
+    stub.chunks.append(b"fourth")  # and the fourth arrives: a reap of the (complete) third still counts it
+    got.append(q.reap(0))
+    assert q.incomplete == 1
+    got.append(q.reap(1.0))
+    assert [d.buffer is b for d, b in zip(got, bufs)] == [True] * 4  # in submission order
+    assert [bytes(d.buffer[:d.nbytes]) for d in got] == [b"first.", b"second", b"third!!", b"fourth"]
+    assert [d.status for d in got] == ["completed"] * 4
     assert q.reap(0.05) is None and q.pending == 1 and q.incomplete == 1  # nothing more arrived
     assert q.reap(0) is None
     q.cancel()
     done = q.reap(1.0)
     assert done.status == "cancelled" and bytes(done.buffer[:done.nbytes]) == b"part" and q.pending == 0
     q.close()
-    assert stub.freed == len(stub.allocated) == 4  # a reaped transfer is reused or freed, never leaked
+    assert stub.freed == len(stub.allocated) == 5  # a reaped transfer is reused or freed, never leaked
 
 
 def test_no_libusb_at_all_is_one_clear_error(monkeypatch):

@@ -349,9 +349,10 @@ class Camera:
     a pyusb backend other than libusb-1.0); rounded to a multiple of wMaxPacketSize."""
     device_buffer_bytes = 256 << 10
     """The EVK's buffer between sensor and USB, bytes [uncertain: its FX3 bridge has 512 KiB of
-    SRAM shared with its firmware, DMA buffers a few hundred KiB]. A spell with no request on the
-    endpoint that could have filled half of it is reported as a possible loss. A backend standing
-for a device (a fake) may state its own as ``device_buffer_bytes`` (``None``: unbounded)."""
+    SRAM shared with its firmware, DMA buffers a few hundred KiB]. Where the endpoint may have
+    lacked request space for longer than it covers, a possible loss is reported
+    (:attr:`capture.evk.stream.Reader.n_idle_risks`). A backend standing for a device (a fake) may
+    state its own as ``device_buffer_bytes`` (``None``: unbounded)."""
     read_timeout_ms = 100
     """Per-request timeout (HAL value); an idle sensor just produces timeouts."""
     queue_bytes = 256 << 20

@@ -14,6 +14,7 @@ from __future__ import annotations
 import array
 import errno
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -170,14 +171,13 @@ class Reader(threading.Thread):
     Attributes
     ----------
     n_idle_risks : int
-        Spells in which the endpoint may have had no request space left for long enough to
-        overflow the device's buffer: data may have been lost there without a trace in the
-        stream (a loss within one EVT3 time-base period that resumes on a TIME_HIGH word leaves
-        it well-formed). When a request completed is not observable from Python (a thread may
-        wait for the GIL), so each spell is bounded from the safe side: queued requests are
-        counted just before each reap, and an interval counts only where none of those
-        submitted before it is still incomplete; a synchronous read may have completed as soon
-        as its bytes could cross the link.
+        Runs in which the endpoint may have lacked request space for longer than the device's
+        buffer covers: data may have been lost there without a trace in the stream (a loss within
+        one EVT3 time-base period that resumes on a TIME_HIGH word leaves it well-formed). When a
+        request completed is not observable from Python (a thread may wait for the GIL), so the
+        bounds err on the safe side: queued requests through :class:`_SpaceLedger`; a synchronous
+        read may have completed as soon as its bytes could cross the link, and the spell until the
+        next counts at :data:`RATE_MARGIN` times the stream's recent rate.
     """
 
     def __init__(self, dev, ep: int, *, read_bytes: int, timeout_ms: int, capacity_bytes: int,
@@ -203,7 +203,8 @@ class Reader(threading.Thread):
         self.gap_s = 0.0
         self.max_gap_s = 0.0
         self.device_buffer_bytes = device_buffer_bytes
-        self.n_idle_risks = 0
+        self._sync_risks = 0
+        self._ledger: _SpaceLedger | None = None
         self._recent: deque = deque()  # (clock s, bytes_read) at recent completions with data
         self._at_risk = False
         self.transfers = transfers
@@ -252,6 +253,11 @@ class Reader(threading.Thread):
         else:
             self._run_sync()
 
+    @property
+    def n_idle_risks(self) -> int:
+        """See the class's attributes."""
+        return self._sync_risks + (self._ledger.n_risks if self._ledger is not None else 0)
+
     def _arrived(self, t_s: float) -> None:
         """Note a completion with data at clock time ``t_s`` (after :meth:`_hand_over`)."""
         recent = self._recent
@@ -259,36 +265,19 @@ class Reader(threading.Thread):
         while len(recent) > 2 and recent[1][0] < t_s - RATE_WINDOW_S:
             recent.popleft()
 
-    def _space_ran_out(self, t_from_s: float, t_to_s: float, space_bytes: float = 0.0,
-                       rate_bytes_s: float | None = None) -> None:
-        """From ``t_from_s`` to ``t_to_s`` (clock s) the endpoint was given no new request and
-        had at most ``space_bytes`` of request space: once that is filled (at the earliest after
-        ``space_bytes`` / the rate) the device can only buffer. Count a possible loss if, at
-        ``rate_bytes_s`` (default :data:`RATE_MARGIN` times the stream's recent rate, at most
-        :data:`LINK_MAX_BYTES_S`), what it buffered meanwhile could have filled its buffer (one
-        count per run of such intervals)."""
+    def _space_ran_out(self, t_from_s: float, t_to_s: float) -> None:
+        """(Synchronous reads) no request was on the endpoint from ``t_from_s`` to ``t_to_s``
+        (clock s): count a possible loss if, at :data:`RATE_MARGIN` times the stream's recent rate
+        (at most :data:`LINK_MAX_BYTES_S`), the device could have filled its buffer meanwhile
+        (one count per run of such spells)."""
         recent = self._recent
-        if self.device_buffer_bytes is None or (rate_bytes_s is None and len(recent) < 2):
+        if self.device_buffer_bytes is None or len(recent) < 2:
             return
-        if rate_bytes_s is None:
-            (t0, b0), (t1, b1) = recent[0], recent[-1]
-            rate_bytes_s = min(RATE_MARGIN * (b1 - b0) / (t1 - t0), LINK_MAX_BYTES_S) if t1 > t0 else 0.0
-        idle_s = t_to_s - t_from_s - (space_bytes / rate_bytes_s if rate_bytes_s else 0.0)
-        risky = idle_s > 0 and rate_bytes_s * idle_s > self.device_buffer_bytes
-        self.n_idle_risks += risky and not self._at_risk
+        (t0, b0), (t1, b1) = recent[0], recent[-1]
+        rate_bytes_s = min(RATE_MARGIN * (b1 - b0) / (t1 - t0), LINK_MAX_BYTES_S) if t1 > t0 else 0.0
+        risky = rate_bytes_s * (t_to_s - t_from_s) > self.device_buffer_bytes
+        self._sync_risks += risky and not self._at_risk
         self._at_risk = risky
-
-    def _count_space(self, t_seen: float, space: float, fresh: int, t_now: float) -> tuple[float, float, int]:
-        """Count the queued requests still incomplete at ``t_now``; since ``t_seen`` the endpoint
-        had at most ``space`` bytes of requests, ``fresh`` of them submitted after ``t_seen``.
-        One submitted before ``t_seen`` and still incomplete had space on the endpoint all along;
-        otherwise it may have run out. Returns the new ``(t_seen, space, fresh)``."""
-        incomplete = self.transfers.incomplete
-        if incomplete > fresh:
-            self._at_risk = False
-        else:  # how fast the device produced meanwhile is unknown: at most what the link carries
-            self._space_ran_out(t_seen, t_now, space, LINK_MAX_BYTES_S)
-        return t_now, incomplete * self.read_bytes, 0
 
     def _hand_over(self, buf, n: int, *, by_reference: bool = True) -> bool:
         """Queue ``n`` bytes read into ``buf``; True if the queue now owns ``buf`` (the caller
@@ -327,9 +316,8 @@ class Reader(threading.Thread):
                         self.error = usb_error(exc, where)
                         self._stop_event.set()
                     break
-            # when the requests were last counted, the space they had at most (bytes) and how many
-            # were submitted since
-            t_seen, space, fresh = clock(), q.pending * self.read_bytes, 0
+            ledger = self._ledger = None if self.device_buffer_bytes is None else _SpaceLedger(
+                self.read_bytes, self.device_buffer_bytes, clock(), q.pending)
             while q.pending:
                 if self._stop_event.is_set() and cancel_by is None:
                     q.cancel()
@@ -343,8 +331,8 @@ class Reader(threading.Thread):
                     t_call = clock()
                     done: Done | None = q.reap(0)
                     if done is None:  # the oldest is incomplete
-                        if cancel_by is None:
-                            t_seen, space, fresh = self._count_space(t_seen, space, fresh, t_call)
+                        if ledger is not None and cancel_by is None:
+                            ledger.counted(t_call, q.incomplete)
                         t_call = clock()
                         done = q.reap(0.05)
                 except usb.core.USBError as exc:  # no more completions can be had
@@ -357,8 +345,8 @@ class Reader(threading.Thread):
                 t_done = clock()
                 if n or status == "completed":
                     self.n_reads += 1
-                if cancel_by is None:
-                    t_seen, space, fresh = self._count_space(t_seen, space, fresh, t_call)
+                if ledger is not None and cancel_by is None:
+                    ledger.counted(t_call, q.incomplete)
                 spare = buf
                 if n:  # whatever the status, the first n bytes arrived (libusb): keep them
                     spare = self._buffer()
@@ -391,7 +379,8 @@ class Reader(threading.Thread):
                     gap = t_submitted - t_done
                     self.gap_s += gap
                     self.max_gap_s = max(self.max_gap_s, gap)
-                    space, fresh = space + self.read_bytes, fresh + 1
+                    if ledger is not None:
+                        ledger.submitted(t_submitted)
                 else:
                     self._free.append(spare)
         except usb.core.USBError as exc:
@@ -469,6 +458,54 @@ def _status_error(status: str) -> usb.core.USBError:
     """The pyusb error matching a failed transfer's libusb status."""
     code = {"stall": errno.EPIPE, "no_device": errno.ENODEV}.get(status, errno.EIO)
     return usb.core.USBError(f"bulk transfer ended with status {status}", None, code)
+
+
+class _SpaceLedger:
+    """Whether queued requests may have left the device without space for longer than its buffer
+    covers, from what the reader can see (not when a request completed: the reaping thread may wait
+    for the GIL).
+
+    The requests are counted as of just before each reap (one incomplete after the reap was
+    incomplete before it). Where one submitted before the previous count is still incomplete, the
+    endpoint had space all along and the ledger starts afresh. Otherwise the run of such counts goes
+    on, and so does the bound: from its start the device may have produced at the link's top speed
+    (:data:`LINK_MAX_BYTES_S`, the rate being unknown) into the space it had then (the oldest
+    incomplete request taken as full) and the requests submitted since, each from its submission
+    on; beyond its buffer, it may have lost data.
+
+    Attributes
+    ----------
+    n_risks : int
+        Runs in which the bound exceeded the buffer.
+    """
+
+    def __init__(self, read_bytes: int, buffer_bytes: int, t_s: float, n_incomplete: int):
+        self.read_bytes, self.buffer_bytes = read_bytes, buffer_bytes
+        self.n_risks = 0
+        self._at_risk = False
+        self._restart(t_s, n_incomplete)
+
+    def _restart(self, t_s: float, n_incomplete: int) -> None:
+        self._t0, self._space = t_s, max(n_incomplete - 1, 0) * self.read_bytes
+        self._excess, self._fresh = -math.inf, 0
+
+    def submitted(self, t_s: float) -> None:
+        """A request was submitted at ``t_s`` (clock s)."""
+        self._excess = max(self._excess, LINK_MAX_BYTES_S * (t_s - self._t0) - self._space)
+        self._space += self.read_bytes
+        self._fresh += 1
+
+    def counted(self, t_s: float, n_incomplete: int) -> None:
+        """``n_incomplete`` requests were incomplete at ``t_s`` (clock s)."""
+        if n_incomplete > self._fresh:
+            self._restart(t_s, n_incomplete)
+            self._at_risk = False
+            return
+        self._fresh = 0
+        excess = max(self._excess, LINK_MAX_BYTES_S * (t_s - self._t0) - self._space)
+        if excess > self.buffer_bytes and not self._at_risk:
+            self.n_risks += 1
+            self._at_risk = True
 
 
 class TimeHighMonitor:

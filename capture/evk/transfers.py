@@ -158,24 +158,19 @@ class LibusbQueue:
         self._order.append((t, buffer))
 
     def reap(self, timeout_s: float) -> Done | None:
-        """The oldest request once complete, or ``None`` after ``timeout_s`` seconds (0: handle
-        the events that are due once, without waiting)."""
+        """The oldest request once complete, or ``None`` after ``timeout_s`` seconds (0: without
+        waiting). The completions due are handled at least once, so :attr:`incomplete` is current."""
         if not self._order:
             return None
-        lib = self._lib
         t, buffer = self._order[0]
         key = ctypes.addressof(t.contents)
         deadline = time.monotonic() + timeout_s
-        handled = False
+        self._handle_events(0.0)  # once in any case: ``incomplete`` is then current
         while key not in self._done:
             left = deadline - time.monotonic()
-            if left <= 0 and handled:
+            if left <= 0:
                 return None
-            tv = lib.timeval(0, max(int(min(left, 0.01) * 1e6), 1))  # short: another thread may reap ours
-            rc = lib.libusb_handle_events_timeout_completed(self._ctx, ctypes.byref(tv), None)
-            if rc and rc != -10:  # LIBUSB_ERROR_INTERRUPTED: just go round again
-                raise _usb_error(rc, "handling USB events")
-            handled = True
+            self._handle_events(left)
         self._done.discard(key)
         self._order.popleft()
         c = t.contents
@@ -183,6 +178,15 @@ class LibusbQueue:
         done = Done(buffer, int(c.actual_length), status)
         self._spare.append(t)
         return done
+
+    def _handle_events(self, timeout_s: float) -> None:
+        """Run libusb's completions, waiting up to ``timeout_s`` (at most 10 ms, at least 1 µs: another
+        thread may be handling ours)."""
+        lib = self._lib
+        tv = lib.timeval(0, max(int(min(timeout_s, 0.01) * 1e6), 1))
+        rc = lib.libusb_handle_events_timeout_completed(self._ctx, ctypes.byref(tv), None)
+        if rc and rc != -10:  # LIBUSB_ERROR_INTERRUPTED: just go round again
+            raise _usb_error(rc, "handling USB events")
 
     def cancel(self) -> None:
         """Cancel every pending request (those already complete are unaffected)."""
