@@ -11,6 +11,10 @@ success) and how well the reported uncertainty covers the error.
 basketball, radius 10, 20 and 36 px, tracked by ``detect.track_ball``, as a replay cuts them), with the
 track's circle uncertainty taken into each estimate and without it (the circle taken as exact).
 
+``--flights``: whole simulated flights (every texture, 10-150 rps, 0.4 s, through the tracker), summed up per
+flight as the results table does: flights with a trusted rate from the windows, and from the period over
+which the ball's image repeats (:func:`capture.pipeline.replay.flight_periods`), right or not.
+
 ``--paper``: after the seed paper's Figs 9-10 / Table 1: volleyball at 10..500 rps and soccer
 at 100 rps (random axes, 640x480, threshold 0.15, 50,000 events, radius 100 px), plus
 volleyball at 1,000 rps and small balls (radius 30 px, 5,000 and 20,000 events).  Methods:
@@ -26,6 +30,7 @@ workers run), so the load of other processes on the machine does not skew them.
     python bench/spin_bench.py --paper --quick          # a few minutes
     python bench/spin_bench.py --rally                  # replay-like windows (r = 36 px, tracker velocity)
     python bench/spin_bench.py --tracked --jobs 2       # spin on the tracker's circles, with and without their sigma
+    python bench/spin_bench.py --flights --jobs 2       # per flight: the windows' rate and the image period's
 """
 
 from __future__ import annotations
@@ -162,6 +167,78 @@ def tracked_flight(case) -> list[dict]:
                     "ok": axis_deg < 5 and rps_pct < 5, "circle_sigma_px": win.sigma_px,
                     "exact": (est.confidence, est.rps_sigma_pct), "told": (told.confidence, told.rps_sigma_pct)})
     return out
+
+
+FLIGHT_TEXTURES = ("volleyball", "soccer", "basketball", "tennis", "baseball", "logo", "tabletennis")
+FLIGHT_RPS = (10, 30, 80, 150)
+
+
+def period_flight(case) -> list[dict]:
+    """One simulated flight (``(texture, rps, seed)``: 640x480, 0.4 s on the default arc, radius 20-40 px,
+    realistic sensor, a walking player) tracked by :func:`detect.track_ball`, cut into windows as a replay
+    cuts them, estimated, and summed up per flight by :func:`capture.results.flight_table` with each
+    flight's image period (:func:`capture.pipeline.replay.flight_periods`): per flight the windows' rate and the
+    period's against the truth."""
+    from capture.events import spin_table, time_slice
+    from capture.pipeline.replay import flight_periods
+    from capture.results import flight_table
+    from detect import spin_windows, track_ball
+
+    texture, rps, seed = case
+    rng = np.random.default_rng(seed * 1000 + rps)
+    axis = rng.normal(size=3)
+    rec = sim.flight(texture, rps=float(rps), axis=tuple(axis / np.linalg.norm(axis)),
+                     radius_px=float(rng.uniform(20, 40)), width=640, height=480, duration_s=0.4,
+                     sensor="realistic", seed=seed)
+    track = track_ball(rec.events, width=rec.width, height=rec.height)
+    windows = list(spin_windows(rec.events, track, window_us=2000, step_us=20000, max_window_us=20000,
+                                min_events=1500, max_events=30000))
+    estimates = spin.estimate_windows(windows, skip_errors=True)
+    table = flight_table(track, spin_table([e for e in estimates if e is not None]),
+                         periods=flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track))
+    out = []
+    for i, fl in enumerate(table["flight"]):
+        out.append({"case": [texture, rps, seed], "flight": int(fl), "ms": float(table["duration_ms"][i]),
+                    "n_windows": int(table["n_windows"][i]), "n_trusted": int(table["n_trusted"][i]),
+                    "rpm": float(table["rpm"][i]), "rpm_sigma": float(table["rpm_sigma"][i]),
+                    "period_rpm": float(table["period_rpm"][i]),
+                    "period_rpm_sigma": float(table["period_rpm_sigma"][i]), "true_rpm": 60.0 * rps})
+    return out
+
+
+def bench_flights(seeds, jobs: int) -> list[dict]:
+    """Per flight (:func:`period_flight`), by texture and rate: flights with a trusted windows' rate and with
+    a rate from the image period, how many of those are right (within 5 %; the period's also within 2 sigma),
+    and the wrong ones."""
+    from multiprocessing import Pool
+
+    cases = [(tex, rps, seed) for tex in FLIGHT_TEXTURES for rps in FLIGHT_RPS for seed in seeds]
+    with Pool(jobs, initializer=_init_worker) as pool:
+        recs = [r for part in pool.map(period_flight, cases, chunksize=1) for r in part]
+    recs = [r for r in recs if r["ms"] >= 100]  # (the tracker's short stray flights: no spin expected)
+    print(f"\nflights of 0.4 s (seeds {seeds}): {len(recs)} flights of at least 100 ms")
+    print(f"  {'':12s} {'flights':>7s} {'windows: rate':>14s} {'right':>6s} {'period: rate':>13s} {'right':>6s} "
+          f"{'in 2 sigma':>10s} {'either':>7s}")
+
+    def line(name, q):
+        win = [r for r in q if np.isfinite(r["rpm"])]
+        per = [r for r in q if np.isfinite(r["period_rpm"])]
+        win_ok = sum(abs(r["rpm"] / r["true_rpm"] - 1) < 0.05 for r in win)
+        per_ok = sum(abs(r["period_rpm"] / r["true_rpm"] - 1) < 0.05 for r in per)
+        cover = sum(abs(r["period_rpm"] - r["true_rpm"]) <= 2 * r["period_rpm_sigma"] for r in per)
+        either = sum(np.isfinite(r["rpm"]) or np.isfinite(r["period_rpm"]) for r in q)
+        print(f"  {name:12s} {len(q):7d} {len(win):14d} {win_ok:6d} {len(per):13d} {per_ok:6d} {cover:10d} {either:7d}")
+
+    for tex in FLIGHT_TEXTURES:
+        line(tex, [r for r in recs if r["case"][0] == tex])
+    for rps in FLIGHT_RPS:
+        line(f"{rps} rps", [r for r in recs if r["case"][1] == rps])
+    line("all", recs)
+    for r in recs:
+        if np.isfinite(r["period_rpm"]) and abs(r["period_rpm"] / r["true_rpm"] - 1) >= 0.05:
+            print(f"  wrong period rate: {r['case']} flight {r['flight']}: {r['period_rpm']:.0f} ± "
+                  f"{r['period_rpm_sigma']:.0f} rpm against {r['true_rpm']:.0f}")
+    return recs
 
 
 def bench_tracked(seeds, textures, jobs: int) -> None:
@@ -321,6 +398,8 @@ def main(argv=None):
     ap.add_argument("--rally", action="store_true", help="replay-like windows of simulated rallies only")
     ap.add_argument("--tracked", action="store_true",
                     help="spin on the tracker's circles (simulated flights, r 10-36 px), with and without their sigma")
+    ap.add_argument("--flights", action="store_true",
+                    help="whole flights of every texture: the windows' rate and the image period's, per flight")
     m = ap.add_argument_group("matrix")
     m.add_argument("--seeds", type=int, default=3, help="tuning seeds per row (0, 1, ...)")
     m.add_argument("--held-out", type=int, default=2, help="held-out seeds per row (from --held-out-from on)")
@@ -354,6 +433,12 @@ def main(argv=None):
         # the tuning seeds (1, 2: volleyball, soccer), then the held-out ones (3, 4, basketball too)
         bench_tracked([1, 2], TRACKED_TEXTURES, args.jobs)
         bench_tracked([3, 4], TRACKED_HELD_OUT_TEXTURES, args.jobs)
+    elif args.flights:
+        # the tuning seeds (1, 2), then the held-out ones (3, 4)
+        recs = bench_flights([1, 2], args.jobs) + bench_flights([3, 4], args.jobs)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump({"flights": recs}, fh, indent=0)
     elif args.paper:
         bench_paper(args)
     else:

@@ -200,8 +200,51 @@ def flight_velocity(t_us, cx_px, cy_px, r_px, camera, ball_diameter_m: float, *,
     return out
 
 
+FOLDS_MAX = 6
+"""Most repeats per turn a texture may show about its axis (a soccer ball's five-fold symmetry
+gave five on the tuning flights)."""
+FOLD_TOLERANCE = 0.07
+"""A fold is the one whose rate lies within this share of the windows' (folds 5 and 6 lie 20 % apart)."""
+PERIOD_SIGMA_REPEATS_PCT = 6.0
+"""1-sigma uncertainty of a period's rate, % times the repeats it is measured over. On tuning
+flights (640x480, 0.35 s, 10–150 rps, radius 20–40 px, realistic sensor, 41 periods found; a probe
+before ``bench/spin_bench.py --flights``) the error times the repeats had a median of 0.13 and a
+largest value of 3.5; smaller balls (18 px) falling on a steep arc across a 320x240 sensor came out
+up to 1.2 % fast over 9 repeats (11), where the same ball flying straight, or still, gave the
+period exactly [cause not found: the arc's acceleration and the sensor's lag are suspected]."""
+PERIOD_SIGMA_FLOOR_PCT = 0.05
+
+
+def period_folds(period_s: float) -> np.ndarray:
+    """The rates (rev/s) a ball whose image repeats every ``period_s`` (s) may turn at: one turn per
+    1 to :data:`FOLDS_MAX` repeats, fastest first."""
+    return 1.0 / (period_s * np.arange(1, FOLDS_MAX + 1))
+
+
+def period_rate(period_s: float, span_s: float, window_rps) -> tuple[float, float] | None:
+    """The spin rate (rev/s) and its 1-sigma uncertainty (%) of a flight whose image repeats every
+    ``period_s`` (s) over ``span_s`` (s): the fold (:func:`period_folds`) within
+    :data:`FOLD_TOLERANCE` of ``window_rps`` (a median rate of the flight's windows, rev/s; folds lie
+    at least 20 % apart, so at most one does), or None. The uncertainty is the period's alone: a
+    wrong fold, where the windows mislead, is off by a whole factor."""
+    if not (np.isfinite(window_rps) and window_rps > 0 and period_s > 0):
+        return None
+    rates = period_folds(period_s)
+    near = np.flatnonzero(np.abs(rates / window_rps - 1.0) <= FOLD_TOLERANCE)
+    if not len(near):
+        return None
+    return float(rates[near[0]]), max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
+
+
+PERIOD_CONTRADICTS = 0.05
+"""Trusted windows whose median rate lies farther than this share from every rate a flight's image
+period allows (:func:`period_folds`) are not trusted (the 5 % a trusted spin stands for). On the
+tuning flights of ``bench/spin_bench.py --flights`` two flights, each on one trusted window of 18,
+were 7 % and 10 % off, their period right; the right ones lay within 2.8 % of it."""
+
+
 def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: float | None = None,
-                 ball: str | None = None) -> dict[str, np.ndarray]:
+                 ball: str | None = None, periods: dict | None = None) -> dict[str, np.ndarray]:
     """One row per flight of ``track`` from the spin windows of ``spin`` (:data:`SPIN_COLUMNS`).
 
     Spin is the median of the flight's trusted windows (confidence >= :data:`TRUST`), its sigma
@@ -216,7 +259,15 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     ``axis_z``, ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``,
     ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``distance_sigma_m``, ``speed_m_s`` (3D),
     ``speed_sigma_m_s``, ``speed_km_h``, ``speed_los_m_s`` (along the line of sight, > 0 away),
-    ``speed_across_m_s``.
+    ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_contradicts``.
+
+    ``periods`` (``{flight: (period_s, peak, span_s) or None}``, as the analysis stores them:
+    :func:`capture.pipeline.replay.flight_periods`) gives each flight's rate from the period of its
+    image, for any texture (``period_rpm``, ``period_rpm_sigma``; NaN where no repeat was found, or
+    where the windows' median rate, the trusted ones' where they stand, singles out no fold of it:
+    :func:`period_rate`). It does not give the axis, and needs at least one window. Where the
+    trusted windows' median rate lies more than :data:`PERIOD_CONTRADICTS` from every rate the
+    period allows, the flight's spin is not trusted (``period_contradicts``; its spin columns NaN).
     """
     win = window_table(track, spin)
     rows = []
@@ -232,8 +283,21 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
                "trusted_share": float(ok.sum() / mine.sum()) if mine.any() else 0.0,
                "image_speed_px_s": float(np.hypot(vx, vy)), "radius_px": r}
         row.update(rpm=nan, rpm_sigma=nan, rps=nan, axis_x=nan, axis_y=nan, axis_z=nan, axis_sigma_deg=nan,
-                   topspin_rpm=nan, sidespin_rpm=nan, gyro_rpm=nan, efficiency=nan, tilt="-")
-        if ok.any():
+                   topspin_rpm=nan, sidespin_rpm=nan, gyro_rpm=nan, efficiency=nan, tilt="-",
+                   period_rpm=nan, period_rpm_sigma=nan)
+        found = (periods or {}).get(int(fl))
+        trusted_rps = float(np.median(win["rps"][ok])) if ok.any() else nan
+        # a spin at a rate the image's period does not allow is not trusted, whatever its windows' confidence
+        contradicted = found is not None and ok.any() and bool(
+            np.abs(period_folds(found[0]) / trusted_rps - 1.0).min() > PERIOD_CONTRADICTS)
+        row["period_contradicts"] = contradicted
+        # the fold: the trusted windows' where they stand, else all the flight's windows' (their rates
+        # are mostly right where a sparse ball's axes are not)
+        by_period = None if found is None or not mine.any() else period_rate(
+            found[0], found[2], float(np.median(win["rps"][mine])) if contradicted or not ok.any() else trusted_rps)
+        if by_period is not None:
+            row.update(period_rpm=60.0 * by_period[0], period_rpm_sigma=60.0 * by_period[0] * by_period[1] / 100.0)
+        if ok.any() and not contradicted:
             rps = win["rps"][ok]
             axes = np.column_stack([win["axis_x"][ok], win["axis_y"][ok], win["axis_z"][ok]])
             mean_axis = axes.mean(axis=0)
@@ -260,7 +324,8 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     names = ["flight", "ball", "t_start_s", "t_end_s", "duration_ms", "n_windows", "n_trusted", "trusted_share",
              "rpm", "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm",
              "sidespin_rpm", "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m",
-             "distance_sigma_m", "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s"]
+             "distance_sigma_m", "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s",
+             "period_rpm", "period_rpm_sigma", "period_contradicts"]
     return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball") else None) for k in names}
 
 
@@ -270,11 +335,13 @@ def format_flight_table(table: dict) -> str:
     if n == 0:
         return "no flight found"
     speed = np.isfinite(np.asarray(table["speed_m_s"], float)).any()
+    period = np.isfinite(np.asarray(table.get("period_rpm", [np.nan]), float)).any()
     balls = [b for b in table.get("ball", ()) if b != "-"]
     width = max([4, *map(len, balls)])
     head = ((f"{'ball':<{width}} " if balls else "")
             + f"{'flight':>6} {'start s':>8} {'ms':>6} {'trusted':>8} {'rpm':>13} {'topspin':>8} {'sidespin':>8} "
-            f"{'gyro':>7} {'eff':>5} {'tilt':>6} {'px/s':>7}" + (f" {'m':>5} {'km/h':>12}" if speed else ""))
+            f"{'gyro':>7} {'eff':>5} {'tilt':>6} {'px/s':>7}" + (f" {'m':>5} {'km/h':>12}" if speed else "")
+            + (f" {'period rpm':>13}" if period else ""))
     lines = [head]
     for i in range(n):
         trusted = f"{table['n_trusted'][i]}/{table['n_windows'][i]}"
@@ -285,17 +352,26 @@ def format_flight_table(table: dict) -> str:
                     f"{sidespin:>8d} {gyro:>7d} "
                     f"{100 * table['efficiency'][i]:>4.0f}% {table['tilt'][i]:>6}")
         else:
-            spin = f"{'no trusted estimate':>51}"
+            why = "contradicted by the period" if table.get("period_contradicts", [False] * n)[i] else "no trusted estimate"
+            spin = f"{why:>51}"
         line = ((f"{table['ball'][i]:<{width}} " if balls else "")
                 + f"{table['flight'][i]:>6} {table['t_start_s'][i]:>8.3f} {table['duration_ms'][i]:>6.0f} "
                 f"{trusted:>8} {spin} {table['image_speed_px_s'][i]:>7.0f}")
         if speed:
             kmh = f"{table['speed_km_h'][i]:.1f} ± {3.6 * table['speed_sigma_m_s'][i]:.1f}"
             line += f" {table['distance_m'][i]:>5.1f} {kmh:>12}"
+        if period:
+            p_rpm, p_sigma = table["period_rpm"][i], table["period_rpm_sigma"][i]
+            by_period = f"{p_rpm:.0f} ± {p_sigma:.0f}" if np.isfinite(p_rpm) else "-"
+            line += f" {by_period:>13}"
         lines.append(line)
     ok = int(np.isfinite(np.asarray(table["rpm"], float)).sum())
-    lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
-                 "tilt seen from behind, 12:00 backspin" + ("; m: distance, km/h: 3D speed ± 1 sigma)" if speed else ")"))
+    n_period = int(np.isfinite(np.asarray(table.get("period_rpm", []), float)).sum())
+    lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin"
+                 + (f", {n_period} with a rate from the image's period (no axis)" if period else "")
+                 + " (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
+                 "tilt seen from behind, 12:00 backspin" + ("; m: distance, km/h: 3D speed ± 1 sigma" if speed else "")
+                 + ("; period rpm: how often the ball's image repeats, ± 1 sigma" if period else "") + ")")
     return "\n".join(lines)
 
 
@@ -375,5 +451,7 @@ def session_results(session, *, ball_diameter_m: float | None = None,
     if ball_diameter_m is None:
         ball_type, ball_diameter_m = stored_ball(s)
     camera = event_camera(s) if ball_diameter_m else None
-    flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type)
+    periods = {int(k): v for k, v in (s.attrs.get("flight_periods") or {}).items()}
+    flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type,
+                           periods=periods)
     return flights, window_table(track, spin_columns)

@@ -53,7 +53,8 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
     span_s = float(ev.s_s[-1] - ev.s_s[0])
     if span_s < min_turns * min_period_s:
         return None
-    n_bins = _n_bins(span_s, min_period_s, n_bins, max_bins)
+    # bins at most a sixth of the shortest period, up to ``max_bins``
+    n_bins = int(np.clip(6 * span_s / min_period_s, n_bins, max_bins))
     bin_s = span_s / n_bins
     lo, hi = max(3, int(min_period_s / bin_s)), int(n_bins / min_turns)
     if hi <= lo + 1:
@@ -120,9 +121,9 @@ def flight_period(t_us, x_px, y_px, p, cx_px, cy_px, r_px, *, max_rps: float = 1
 
     Returns
     -------
-    (period_s, peak, bin_s) or None
-        The period (s), the height of its autocorrelation peak (0..1) and the time bin (s) it
-        was measured on; None where the image shows no repeat.
+    (period_s, peak, span_s) or None
+        The period (s), the height of its autocorrelation peak (0..1) and the span of the events
+        it was measured on (s); None where the image shows no repeat.
     """
     t_us = np.asarray(t_us, np.int64)
     dx = np.asarray(x_px, np.float64) - cx_px
@@ -142,13 +143,7 @@ def flight_period(t_us, x_px, y_px, p, cx_px, cy_px, r_px, *, max_rps: float = 1
     found = image_period(ev, (0.0, 0.0), min_period_s=min_period_s, max_bins=FLIGHT_MAX_BINS)
     if found is None:
         return None
-    return found[0], found[1], float(s[-1]) / _n_bins(float(s[-1]), min_period_s, 512, FLIGHT_MAX_BINS)
-
-
-def _n_bins(span_s: float, min_period_s: float, n_bins: int, max_bins: int) -> int:
-    """Time bins over ``span_s``: at most a sixth of the shortest period each, at least ``n_bins`` and
-    at most ``max_bins`` of them."""
-    return int(np.clip(6 * span_s / min_period_s, n_bins, max_bins))
+    return found[0], found[1], float(s[-1])
 
 
 def _local_peak(a: np.ndarray, lag: float) -> int | None:

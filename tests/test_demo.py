@@ -49,6 +49,11 @@ def test_demo_records_analyses_and_reviews(demo):
     assert summary["n_confident"] >= 3
     assert summary["rps_error_pct"] < 3.0
     assert summary["axis_error_deg"] < 3.0  # a flipped axis would be 180 deg off
+    # the flight's image repeats once a turn: stored with the analysis, and the printed table's rate
+    period_s, peak, span_s = s.attrs["flight_periods"]["0"]
+    assert period_s * truth["truth_rps"] == pytest.approx(1.0, abs=0.01) and span_s > 0.2
+    header, row = printed.splitlines()[[i for i, line in enumerate(printed.splitlines()) if "period rpm" in line][0]:][:2]
+    assert float(row.split()[-3]) == pytest.approx(60 * truth["truth_rps"], rel=0.01)
     # the Rerun recording reads back with the ball and spin entities
     paths, truth_rpm, ball_images = set(), [], []
     for chunk in RrdReader(out / "review.rrd").stream():

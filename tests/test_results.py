@@ -7,8 +7,8 @@ import pytest
 import sim
 from capture.events import SPIN_COLUMNS, Track, empty_table
 from capture.report import main as report_main
-from capture.results import (flight_table, flight_velocity, format_flight_table, tilt_clock, window_table, write_csv,
-                             write_parquet)
+from capture.results import (PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT, flight_table, flight_velocity,
+                             format_flight_table, period_rate, tilt_clock, window_table, write_csv, write_parquet)
 from capture.session import create_session
 from detect import spin_windows, track_ball
 
@@ -95,6 +95,63 @@ def test_flights_without_a_trusted_window_are_listed_as_such():
     assert "no trusted estimate" in text and "yield: 1 of 2 flight(s)" in text
     w = window_table(track, spin)
     assert list(np.unique(w["flight"])) == [0, 1] and w["trusted"].sum() == 8
+
+
+def test_a_flight_without_a_trusted_window_gets_its_rate_from_its_image_period():
+    """The untrusted windows' rates (about 30 rps: the axes of a sparse ball are what they miss) pick
+    which fold of the image's period is one turn; the period gives the rate, not the axis."""
+    v = (3000, 0)
+    track = Track.concat([_track(v), _track(v, (200_000, 300_000), flight=1)])
+    spin = {k: np.concatenate([a[k], b[k]]) for k, a, b in
+            ((k, _spin((0, 0, -1), 30.0, v), _spin((0, 1, 0), 31.0, v, t0=200_000, conf=0.2, rps_noise=0.5))
+             for k in SPIN_COLUMNS)}
+    # flight 0's image repeats once a turn, flight 1's five times (a soccer ball about a five-fold axis)
+    periods = {0: (1 / 30.01, 0.9, 0.1), 1: (1 / 150.0, 0.8, 0.1)}
+    t = flight_table(track, spin, periods=periods)
+    assert np.isnan(t["rpm"][1]) and t["period_rpm"][1] == pytest.approx(1800.0)
+    assert t["period_rpm"][0] == pytest.approx(60 * 30.01)
+    assert t["period_rpm_sigma"][1] == pytest.approx(1800.0 * PERIOD_SIGMA_REPEATS_PCT * (1 / 150) / 0.1 / 100)
+    text = format_flight_table(t)
+    assert "period rpm" in text.splitlines()[0] and f"1800 ± {t['period_rpm_sigma'][1]:.0f}" in text.splitlines()[2]
+    assert "no trusted estimate" in text and "1 of 2 flight(s) with a trusted spin, 2 with a rate from" in text
+    assert not t["period_contradicts"].any()
+    # no period found, or windows that single out no fold: NaN, and no column
+    for bad in ({}, {0: None, 1: (1 / 40.0, 0.9, 0.1)}):
+        t = flight_table(track, spin, periods=bad)
+        assert np.isnan(t["period_rpm"]).all() and "period rpm" not in format_flight_table(t)
+    # trusted windows whose rate lies 6 % from the period's (one fold within 7 % of them): not trusted
+    t = flight_table(track, spin, periods={0: (1 / 28.3, 0.9, 0.1)})
+    assert t["period_contradicts"][0] and np.isnan(t["rpm"][0]) and np.isnan(t["axis_x"][0])
+    assert t["period_rpm"][0] == pytest.approx(60 * 28.3)
+    assert "contradicted by the period" in format_flight_table(t).splitlines()[1]
+    t = flight_table(track, spin, periods={0: (1 / 29.0, 0.9, 0.1)})  # 3.4 % apart: both stand
+    assert not t["period_contradicts"][0] and np.isfinite(t["rpm"][0])
+    # three trusted windows right, seven untrusted at half the rate (an alias): the trusted ones pick the
+    # fold, and the period, once a turn, allows their rate
+    mixed = {k: np.concatenate([a[k], b[k]]) for k, a, b in
+             ((k, _spin((0, 0, -1), 30.0, v, n=3), _spin((0, 1, 0), 15.0, v, n=7, t0=30_000, conf=0.1))
+              for k in SPIN_COLUMNS)}
+    t = flight_table(_track(v), mixed, periods={0: (1 / 30.0, 0.9, 0.1)})
+    assert not t["period_contradicts"][0] and t["rpm"][0] == pytest.approx(1800.0)
+    assert t["period_rpm"][0] == pytest.approx(1800.0)
+
+
+@pytest.mark.parametrize("period_s, window_rps, expected_rps", [
+    (1 / 30.0, 29.0, 30.0),     # one repeat a turn
+    (1 / 150.0, 30.5, 30.0),    # five (a soccer ball about a five-fold axis): the windows pick the fold
+    (1 / 60.0, 31.0, 30.0),     # two
+    (1 / 30.0, 22.0, None),     # the windows' rate lies 27 % from every fold: none is taken
+    (1 / 30.0, float("nan"), None),
+])
+def test_the_windows_rate_picks_how_many_repeats_make_a_turn(period_s, window_rps, expected_rps):
+    got = period_rate(period_s, 0.3, window_rps)
+    if expected_rps is None:
+        assert got is None
+    else:
+        rps, sigma_pct = got
+        assert rps == pytest.approx(expected_rps)
+        # over fewer repeats, a wider uncertainty
+        assert sigma_pct == pytest.approx(max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / 0.3))
 
 
 def test_the_table_prints_no_negative_zero():
@@ -298,6 +355,7 @@ def test_html_report_is_one_self_contained_file_with_the_table_and_plots(tmp_pat
     assert flights["rpm"][0] == pytest.approx(1200.0, rel=0.03)
     assert f"<td>{flights['rpm'][0]:.0f}</td>" in doc and f"<td>{flights['tilt'][0]}</td>" in doc
     assert "Flight 0" in doc
+    assert "<th>period rpm</th>" in doc and "<th>contradicted by the period</th>" in doc
 
 
 def test_the_ball_recorded_with_the_session_gives_distance_and_speed(tmp_path, capsys):

@@ -38,6 +38,7 @@ from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
 from detect.track import events_near
+from spin.period import FLIGHT_INNER, FLIGHT_MAX_EVENTS, flight_period
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -424,13 +425,76 @@ def analysed_with(session, options: ReplayOptions) -> bool:
     return session.attrs.get("analysis") == analysis_stamp(options)
 
 
-def store_results(session_path, track: Track, spin_columns: dict, options: ReplayOptions) -> None:
-    """Replace a session's track and spin tables with these and stamp them (:func:`analysis_stamp`).
-    The old stamp goes first: a write cut short leaves a session that no batch skips."""
+PERIOD_CHUNK_US = 50_000
+"""A flight's events are read and placed on its track in pieces of this length (µs)."""
+PERIOD_FLICKER_TOLERANCE = 0.01
+"""A period within this share of a flickering light's period (or of 1/4 to 4 times it) is the light's."""
+
+
+def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
+                   flicker_hz: float | None = None) -> dict[int, tuple | None]:
+    """The period over which each flight's ball image repeats (:func:`spin.period.flight_period`,
+    ``(period_s, peak, span_s)`` or None), from the events and the flights' track rows.
+
+    ``events_between(t0_us, t1_us)`` gives the events with ``t0_us <= t < t1_us`` (EVENT_DTYPE; e.g. a
+    session's ``events``). A flight's events are read in pieces of :data:`PERIOD_CHUNK_US`: those
+    outside the box of the piece's circles are dropped first, the rest placed on the track
+    interpolated at each one's time, those off the ball's inner disc dropped, and what is left
+    thinned evenly so that the flight keeps about ``spin.period.FLIGHT_MAX_EVENTS``. A period that
+    is a flickering light's (``flicker_hz``, Hz; within :data:`PERIOD_FLICKER_TOLERANCE` of 1/4 to 4
+    times its period) is not the ball's: None."""
+    out = {}
+    for fl in track.flight_ids():
+        sel = track.flight == fl
+        t_rows, cx_rows, cy_rows, r_rows = track.t_us[sel], track.cx[sel], track.cy[sel], track.r[sel]
+        t_first, t_last = int(t_rows[0]), int(t_rows[-1]) + 1
+        share = max(int(FLIGHT_MAX_EVENTS * PERIOD_CHUNK_US / (t_last - t_first)), 1)  # events kept per piece
+        pieces = []
+        for t0 in range(t_first, t_last, PERIOD_CHUNK_US):
+            t1 = min(t0 + PERIOD_CHUNK_US, t_last)
+            # the piece's circles (the rows within it and the two around it) bound where its events count
+            k0, k1 = max(np.searchsorted(t_rows, t0) - 1, 0), np.searchsorted(t_rows, t1) + 1
+            box = (cx_rows[k0:k1] - r_rows[k0:k1]).min(), (cx_rows[k0:k1] + r_rows[k0:k1]).max(), \
+                (cy_rows[k0:k1] - r_rows[k0:k1]).min(), (cy_rows[k0:k1] + r_rows[k0:k1]).max()
+            ev = events_between(t0, t1)
+            ev = ev[(ev["x"] >= box[0]) & (ev["x"] <= box[1]) & (ev["y"] >= box[2]) & (ev["y"] <= box[3])]
+            t = ev["t"].astype(np.int64)
+            cx, cy, r = (np.interp(t, t_rows, a) for a in (cx_rows, cy_rows, r_rows))
+            on = np.flatnonzero((ev["x"] - cx) ** 2 + (ev["y"] - cy) ** 2 <= (FLIGHT_INNER * r) ** 2)
+            on = on[::-(-len(on) // share)] if len(on) > share else on
+            pieces.append((t[on], ev["x"][on], ev["y"][on], ev["p"][on], cx[on], cy[on], r[on]))
+        columns = [np.concatenate(c) for c in zip(*pieces)]
+        found = flight_period(*columns, max_rps=max_rps) if len(columns[0]) > 1 else None
+        if found is not None and flicker_hz:
+            ratio = found[0] * flicker_hz
+            if any(abs(ratio / q - 1.0) < PERIOD_FLICKER_TOLERANCE for q in (0.25, 1 / 3, 0.5, 1.0, 2.0, 3.0, 4.0)):
+                found = None
+        out[int(fl)] = found
+    return out
+
+
+def session_periods(session_path, track: Track, options: ReplayOptions) -> dict[int, tuple | None]:
+    """:func:`flight_periods` of a stored session, with the flicker its tracker filtered (the
+    options' ``flicker_hz``; ``"auto"``: what :func:`session_flicker_hz` finds)."""
+    flicker = options.tracker.get("flicker_hz")
+    flicker = session_flicker_hz(session_path) if flicker == "auto" else flicker
+    return flight_periods(open_session(session_path, cache_chunks=2).events, track,
+                          flicker_hz=float(flicker) if flicker else None)
+
+
+def store_results(session_path, track: Track, spin_columns: dict, options: ReplayOptions,
+                  periods: dict | None = None) -> None:
+    """Replace a session's track and spin tables with these, and its flights' image periods
+    (``periods``, default :func:`session_periods`; attrs ``flight_periods``: ``{flight: [period_s,
+    peak, span_s] or None}``), and stamp them (:func:`analysis_stamp`). The old stamp and periods go
+    first: a write cut short leaves a session that no batch skips, and no periods of other flights."""
+    if periods is None:
+        periods = session_periods(session_path, track, options)
     writer = update_session(session_path)
-    writer.set_attrs(analysis=None)
+    writer.set_attrs(analysis=None, flight_periods=None)
     writer.write_track(track.columns())
     writer.write_spin(spin_columns)
+    writer.set_attrs(flight_periods={str(k): None if v is None else [float(x) for x in v] for k, v in periods.items()})
     writer.close(analysis=analysis_stamp(options))
 
 
@@ -464,8 +528,9 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
                     initializer=one_thread_per_worker) as work:
         track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
+        periods = session_periods(session_path, track, options)  # while the worker goes on with spin
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
-    store_results(session_path, track, spin_columns, options)
+    store_results(session_path, track, spin_columns, options, periods)
     if rrd_path is not None:
         from capture.review import write_rrd  # Rerun's SDK takes 0.3 s to import: only when a review is asked for
 
