@@ -141,6 +141,8 @@ class _OpenFlight:
     next_start_us: int  # first window start not handed out yet
     near: list  # events near the ball from ``next_start_us`` on
     ended: bool = False
+    seen: list = field(default_factory=list)  # every event near the ball, for its image's period
+    rows: list = field(default_factory=list)  # every final row
 
 
 def _hand_out_parts(flight: _OpenFlight, options: ReplayOptions, assigned_before_us, on_part,
@@ -230,8 +232,19 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
         yield t_us, img
 
 
+def _period_of(fl: _OpenFlight, flicker_hz) -> tuple | None:
+    """:func:`flight_periods` of a done flight from the events kept near its ball."""
+    if not fl.seen or not fl.rows:
+        return None
+    seen = concatenate(fl.seen)
+    rows = Track.concat(fl.rows)
+    found = flight_periods(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
+                           flicker_hz=float(flicker_hz) if flicker_hz else None)
+    return next(iter(found.values()), None)
+
+
 def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
-                  on_part=None) -> Track:
+                  on_part=None, on_period=None) -> Track:
     """Detect and track the ball over a session, streaming its events in batches.
 
     Parameters
@@ -243,6 +256,10 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
         all their events have been read, while tracking goes on; every window of every
         flight is in exactly one part, in order within a flight.  Parts carry the session's
         event camera (:func:`event_camera`).
+    on_period : callable, optional
+        With ``on_part``: called with each flight's number and its image's period
+        (:func:`flight_periods`, from the events kept near its ball, not read again) once the
+        flight is done.
 
     Returns
     -------
@@ -256,6 +273,8 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     longest_us = max(options.window_us, options.max_window_us)
     s = open_session(session_path)
     camera = event_camera(s)
+    flicker_hz = options.tracker.get("flicker_hz")
+    flicker_hz = (session_flicker_hz(session_path) if flicker_hz == "auto" else flicker_hz) if on_period else None
     tracker = BallTracker(s.width, s.height, **options.tracker)
     frames = iter_session_frames(s, s.width, s.height)
     pending = next(frames, None)
@@ -275,7 +294,9 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
                 flights[fid] = _OpenFlight(rows, Track.empty(), int(rows.t_us[0]), [])
             newest = max(newest, fid)
         for fid in np.unique(final.flight).tolist():
-            flights[fid].final = Track.concat([flights[fid].final, final.select(final.flight == fid)])
+            rows = final.select(final.flight == fid)
+            flights[fid].final = Track.concat([flights[fid].final, rows])
+            flights[fid].rows.append(rows)
         for fid, fl in flights.items():
             fl.ended = fid not in tracker.active_flights
 
@@ -291,6 +312,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
                 idx = _near_ball(*columns, fl.causal, longest_us)
                 if len(idx):
                     fl.near.append(np.take(ev, idx))  # 10x faster than ev[idx] on records
+                    fl.seen.append(fl.near[-1])
             if k < len(ev):
                 unread[0] = ev[k:]
                 break
@@ -306,6 +328,8 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             _hand_out_parts(fl, options, assigned_before_us, on_part, camera)
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
+                if on_period is not None:
+                    on_period(fid, _period_of(fl, flicker_hz))
                 del flights[fid]
 
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
@@ -527,8 +551,9 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
     with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
                     initializer=one_thread_per_worker) as work:
-        track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)))
-        periods = session_periods(session_path, track, options)  # while the worker goes on with spin
+        periods = {}
+        track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)),
+                              on_period=periods.__setitem__)
         spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
     store_results(session_path, track, spin_columns, options, periods)
     if rrd_path is not None:
