@@ -119,15 +119,15 @@ def test_a_reaper_slower_than_the_stream_loses_data_and_the_recording_says_so(tm
     recording must still say so."""
     from capture.evk import stream
 
-    arrived = stream.Reader._arrived
+    hand_over = stream.Reader._hand_over
 
-    def slow(self, t_s):
+    def slow(self, buf, n, **kwargs):
         end = time.perf_counter() + 0.0008
         while time.perf_counter() < end:
             pass
-        arrived(self, t_s)
+        return hand_over(self, buf, n, **kwargs)
 
-    monkeypatch.setattr(stream.Reader, "_arrived", slow)
+    monkeypatch.setattr(stream.Reader, "_hand_over", slow)
     for speed in (0.5, 3.0):
         fake = FakeEVK(busy_stream, pace="recorded", speed=speed, fifo_bytes=EVK_FIFO_BYTES, link_bytes_s=350e6)
         with evk.open(backend=fake) as cam:

@@ -205,7 +205,7 @@ class Reader(threading.Thread):
         self.device_buffer_bytes = device_buffer_bytes
         self._sync_risks = 0
         self._ledger: _SpaceLedger | None = None
-        self._recent: deque = deque()  # (clock s, bytes_read) at recent completions with data
+        self._recent: deque = deque()  # (clock s, bytes_read) at recent synchronous reads with data
         self._at_risk = False
         self.transfers = transfers
         self.n_transfers = int(n_transfers) if transfers is not None else 1
@@ -259,7 +259,8 @@ class Reader(threading.Thread):
         return self._sync_risks + (self._ledger.n_risks if self._ledger is not None else 0)
 
     def _arrived(self, t_s: float) -> None:
-        """Note a completion with data at clock time ``t_s`` (after :meth:`_hand_over`)."""
+        """(Synchronous reads) note a read with data returned at clock time ``t_s`` (after
+        :meth:`_hand_over`): the stream's recent rate, for :meth:`_space_ran_out`."""
         recent = self._recent
         recent.append((t_s, self.bytes_read))
         while len(recent) > 2 and recent[1][0] < t_s - RATE_WINDOW_S:
@@ -356,7 +357,6 @@ class Reader(threading.Thread):
                     elif not self._hand_over(buf, n):
                         self._free.append(spare)
                         spare = buf
-                    self._arrived(t_done)
                 if status == "timed_out" and not n:
                     self.n_timeouts += 1
                     if eos is not None and eos():

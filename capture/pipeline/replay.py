@@ -232,14 +232,14 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
         yield t_us, img
 
 
-def _period_of(fl: _OpenFlight, flicker_hz) -> tuple | None:
+def _period_of(fl: _OpenFlight, flicker_hz: float | None) -> tuple | None:
     """:func:`flight_periods` of a done flight from the events kept near its ball."""
     if not fl.seen or not fl.rows:
         return None
     seen = concatenate(fl.seen)
     rows = Track.concat(fl.rows)
     found = flight_periods(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
-                           flicker_hz=float(flicker_hz) if flicker_hz else None)
+                           flicker_hz=flicker_hz)
     return next(iter(found.values()), None)
 
 
@@ -273,8 +273,6 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     longest_us = max(options.window_us, options.max_window_us)
     s = open_session(session_path)
     camera = event_camera(s)
-    flicker_hz = options.tracker.get("flicker_hz")
-    flicker_hz = (session_flicker_hz(session_path) if flicker_hz == "auto" else flicker_hz) if on_period else None
     tracker = BallTracker(s.width, s.height, **options.tracker)
     frames = iter_session_frames(s, s.width, s.height)
     pending = next(frames, None)
@@ -329,7 +327,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
                 if on_period is not None:
-                    on_period(fid, _period_of(fl, flicker_hz))
+                    on_period(fid, _period_of(fl, tracker.flicker_hz))  # (what the tracker filtered)
                 del flights[fid]
 
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
@@ -498,10 +496,9 @@ def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
 
 
 def session_periods(session_path, track: Track, options: ReplayOptions) -> dict[int, tuple | None]:
-    """:func:`flight_periods` of a stored session, with the flicker its tracker filtered (the
-    options' ``flicker_hz``; ``"auto"``: what :func:`session_flicker_hz` finds)."""
-    flicker = options.tracker.get("flicker_hz")
-    flicker = session_flicker_hz(session_path) if flicker == "auto" else flicker
+    """:func:`flight_periods` of a stored session, with the flicker its tracker filtered
+    (:func:`resolved_options`)."""
+    flicker = resolved_options(session_path, options).tracker.get("flicker_hz")
     return flight_periods(open_session(session_path, cache_chunks=2).events, track,
                           flicker_hz=float(flicker) if flicker else None)
 
