@@ -22,6 +22,8 @@ import math
 import numba
 import numpy as np
 
+from capture.events import EVENT_DTYPE
+
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def axes_speeds(w_rad_s):
@@ -237,6 +239,43 @@ def vote_nearest(q, weight, hemispheres, size, h, width):
     return acc.astype(np.float32).reshape(h, stride)
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def on_track_disc(t_us, x, y, t_rows, cx_rows, cy_rows, r_rows, inner):
+    """Events within ``inner`` times the radius of a track's circle at their own times.
+
+    The circle is the rows' ``(cx, cy, r)`` interpolated linearly at each event's time (held at the
+    first and last rows beyond them, as ``np.interp``); events and rows are time-sorted, so one
+    pass walks both.  Returns the events' indices (K,) and their circles' ``cx, cy, r`` (K,) (px).
+    """
+    n = t_us.shape[0]
+    m = t_rows.shape[0]
+    # per row: the circle at its time and its change per µs up to the next row (none after the last)
+    slope = np.zeros((m, 3))
+    for j in range(m - 1):
+        dt = t_rows[j + 1] - t_rows[j]
+        if dt > 0:
+            slope[j, 0] = (cx_rows[j + 1] - cx_rows[j]) / dt
+            slope[j, 1] = (cy_rows[j + 1] - cy_rows[j]) / dt
+            slope[j, 2] = (r_rows[j + 1] - r_rows[j]) / dt
+    idx = np.empty(n, np.int64)
+    out = np.empty((3, n))
+    k = 0
+    j = 0
+    for i in range(n):
+        t = t_us[i]
+        while j + 1 < m and t_rows[j + 1] <= t:
+            j += 1
+        dt = t - t_rows[j] if t > t_rows[0] else 0
+        cx = cx_rows[j] + dt * slope[j, 0]
+        cy = cy_rows[j] + dt * slope[j, 1]
+        r = inner * (r_rows[j] + dt * slope[j, 2])
+        dx = x[i] - cx
+        dy = y[i] - cy
+        idx[k] = i  # written always, kept by counting it (no branch to mispredict: 1.3x faster)
+        out[0, k], out[1, k], out[2, k] = cx, cy, r
+        k += dx * dx + dy * dy <= r * r
+    return idx[:k], out[0, :k], out[1, :k], out[2, :k] / inner
+
 def load() -> None:
     """Load the compiled loops now (from Numba's cache; compiled on first use after an install)."""
     p = np.zeros((3, 1), np.float32)
@@ -248,3 +287,8 @@ def load() -> None:
     for hemispheres in (False, True):
         vote_nearest(np.zeros((1, 1, 3, 1), np.float32), trig, hemispheres, 9, 9, 9)
     gradients(one, one, one, one, one, axes, np.ones(1), trig, trig, trig, 1.0, corner, fu, fv, q, img, True)
+    events = np.zeros(2, EVENT_DTYPE)
+    for writable in (True, False):  # columns of events read from a store (strided, maybe read-only)
+        events.setflags(write=writable)
+        on_track_disc(events["t"], events["x"], events["y"], np.zeros(1, np.int64), np.zeros(1), np.zeros(1),
+                      np.ones(1), 1.0)

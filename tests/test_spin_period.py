@@ -223,3 +223,29 @@ def test_a_period_that_is_a_flickering_light_s_is_not_the_ball_s():
         assert flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=hz)[0] is None
     assert flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=100.0)[0] == found[0]
 
+
+
+@pytest.mark.parametrize("writable", [True, False])
+def test_events_on_a_track_s_inner_disc_are_those_np_interp_places_there(writable):
+    """spin.period.on_track_disc (one compiled pass) against np.interp of the rows at each event's
+    time: events before the first row, after the last, at rows sharing a time, and an event array's
+    own (strided, maybe read-only) columns."""
+    from capture.events import EVENT_DTYPE
+    from spin.period import on_track_disc
+
+    rng = np.random.default_rng(4)
+    ev = np.zeros(200_000, EVENT_DTYPE)
+    ev["t"] = np.sort(rng.integers(-5_000, 105_000, len(ev)))
+    ev["x"], ev["y"] = rng.integers(0, 120, len(ev)), rng.integers(0, 120, len(ev))
+    ev.setflags(write=writable)
+    t_rows = np.array([0, 30_000, 30_000, 60_000, 90_000])
+    cx, cy, r = np.array([50, 40, 41, 70, 55.0]), np.array([50, 48, 47, 60, 40.0]), np.array([20, 22, 22, 25, 30.0])
+    idx, cx_on, cy_on, r_on = on_track_disc(ev["t"], ev["x"], ev["y"], t_rows, cx, cy, r, 0.85)
+    want = [np.interp(ev["t"], t_rows, a) for a in (cx, cy, r)]
+    inside = np.flatnonzero((ev["x"] - want[0]) ** 2 + (ev["y"] - want[1]) ** 2 <= (0.85 * want[2]) ** 2)
+    inside_safe = np.flatnonzero(np.abs(np.hypot(ev["x"] - want[0], ev["y"] - want[1]) - 0.85 * want[2]) > 1e-9)
+    assert 0.05 * len(ev) < len(idx) < 0.5 * len(ev)  # premise: some in, most out
+    np.testing.assert_array_equal(np.intersect1d(idx, inside_safe), np.intersect1d(inside, inside_safe))
+    for got, w in zip((cx_on, cy_on, r_on), want):
+        np.testing.assert_allclose(got, w[idx], atol=1e-9)
+    assert on_track_disc(ev["t"][:0], ev["x"][:0], ev["y"][:0], t_rows, cx, cy, r)[0].shape == (0,)

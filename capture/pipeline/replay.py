@@ -38,7 +38,7 @@ from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
 from detect.track import events_near
-from spin.period import FLIGHT_INNER, FLIGHT_MAX_EVENTS, flight_period
+from spin.period import FLIGHT_MAX_EVENTS, flight_period, on_track_disc
 
 BATCH_EVENTS = 1 << 20
 """Events read from the store per detection step (bounds memory)."""
@@ -459,12 +459,11 @@ def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
     ``(period_s, peak, span_s)`` or None), from the events and the flights' track rows.
 
     ``events_between(t0_us, t1_us)`` gives the events with ``t0_us <= t < t1_us`` (EVENT_DTYPE; e.g. a
-    session's ``events``). A flight's events are read in pieces of :data:`PERIOD_CHUNK_US`: those
-    outside the box of the piece's circles are dropped first, the rest placed on the track
-    interpolated at each one's time, those off the ball's inner disc dropped, and what is left
-    thinned evenly so that the flight keeps about ``spin.period.FLIGHT_MAX_EVENTS``. A period that
-    is a flickering light's (``flicker_hz``, Hz; within :data:`PERIOD_FLICKER_TOLERANCE` of 1/4 to 4
-    times its period) is not the ball's: None."""
+    session's ``events``). A flight's events are read in pieces of :data:`PERIOD_CHUNK_US`, placed on
+    the track interpolated at each one's time, those off the ball's inner disc dropped
+    (:func:`spin.period.on_track_disc`), and what is left thinned evenly so that the flight keeps
+    about ``spin.period.FLIGHT_MAX_EVENTS``. A period that is a flickering light's (``flicker_hz``, Hz;
+    within :data:`PERIOD_FLICKER_TOLERANCE` of 1/4 to 4 times its period) is not the ball's: None."""
     out = {}
     for fl in track.flight_ids():
         sel = track.flight == fl
@@ -473,18 +472,11 @@ def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
         share = max(int(FLIGHT_MAX_EVENTS * PERIOD_CHUNK_US / (t_last - t_first)), 1)  # events kept per piece
         pieces = []
         for t0 in range(t_first, t_last, PERIOD_CHUNK_US):
-            t1 = min(t0 + PERIOD_CHUNK_US, t_last)
-            # the piece's circles (the rows within it and the two around it) bound where its events count
-            k0, k1 = max(np.searchsorted(t_rows, t0) - 1, 0), np.searchsorted(t_rows, t1) + 1
-            box = (cx_rows[k0:k1] - r_rows[k0:k1]).min(), (cx_rows[k0:k1] + r_rows[k0:k1]).max(), \
-                (cy_rows[k0:k1] - r_rows[k0:k1]).min(), (cy_rows[k0:k1] + r_rows[k0:k1]).max()
-            ev = events_between(t0, t1)
-            ev = ev[(ev["x"] >= box[0]) & (ev["x"] <= box[1]) & (ev["y"] >= box[2]) & (ev["y"] <= box[3])]
-            t = ev["t"].astype(np.int64)
-            cx, cy, r = (np.interp(t, t_rows, a) for a in (cx_rows, cy_rows, r_rows))
-            on = np.flatnonzero((ev["x"] - cx) ** 2 + (ev["y"] - cy) ** 2 <= (FLIGHT_INNER * r) ** 2)
-            on = on[::-(-len(on) // share)] if len(on) > share else on
-            pieces.append((t[on], ev["x"][on], ev["y"][on], ev["p"][on], cx[on], cy[on], r[on]))
+            ev = events_between(t0, min(t0 + PERIOD_CHUNK_US, t_last))
+            on, cx, cy, r = on_track_disc(ev["t"], ev["x"], ev["y"], t_rows, cx_rows, cy_rows, r_rows)
+            step = max(-(-len(on) // share), 1)
+            on, cx, cy, r = on[::step], cx[::step], cy[::step], r[::step]
+            pieces.append((ev["t"][on], ev["x"][on], ev["y"][on], ev["p"][on], cx, cy, r))
         columns = [np.concatenate(c) for c in zip(*pieces)]
         found = flight_period(*columns, max_rps=max_rps) if len(columns[0]) > 1 else None
         if found is not None and flicker_hz:
