@@ -720,30 +720,47 @@ def moved_near(t, x, y, m, vx, vy, cx, cy, reach):
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
-def surrounded(x, y, cx, cy, r, n_sectors, step):
-    """Share of the ``n_sectors`` directions around the circle ``(cx, cy, r)`` (px) in which the ring
-    just outside it (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the
-    disk, from every ``step``-th event of ``x, y`` (px, (N,) float64 or int32), in float32."""
+def ring_counts(x, y, cx, cy, r, n_sectors, step):
+    """Events in each of ``n_sectors`` directions of the ring just outside the circle ``(cx, cy, r)``
+    (px; ``1.15 r + 1`` to ``1.5 r + 2``), in its inner and outer halves (by radius), sector 0 from
+    angle -pi; events inside the circle; and of those, events in its outer band (``0.7 r`` to ``r``,
+    where any ball fires, a plain one too); from every ``step``-th event of ``x, y`` (px, (N,) float64
+    or int32), in float32: ``(counts (2, n_sectors), n_in, n_band)``."""
     r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    in2, r02, r12 = np.float32(r * r), np.float32(r0 * r0), np.float32(r1 * r1)
+    rm = 0.5 * (r0 + r1)
+    in2, r02, rm2, r12 = np.float32(r * r), np.float32(r0 * r0), np.float32(rm * rm), np.float32(r1 * r1)
+    band2 = np.float32(0.49 * r * r)
     fcx, fcy = np.float32(cx), np.float32(cy)
     to_sector = np.float32(n_sectors / (2.0 * np.pi))
-    counts = np.zeros(n_sectors, np.int64)
+    counts = np.zeros((2, n_sectors), np.int64)
     n_in = 0
+    n_band = 0
     for i in range(0, len(x), step):
         dx = np.float32(x[i]) - fcx
         dy = np.float32(y[i]) - fcy
         d2 = dx * dx + dy * dy
         if d2 < in2:
             n_in += 1
+            if d2 >= band2:
+                n_band += 1
         elif r02 < d2 < r12:
             s = int((math.atan2(dy, dx) + np.float32(np.pi)) * to_sector) % n_sectors
-            counts[s] += 1
+            counts[int(d2 >= rm2), s] += 1
+    return counts, n_in, n_band
+
+
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def surrounded(x, y, cx, cy, r, n_sectors, step):
+    """Share of the ``n_sectors`` directions around the circle ``(cx, cy, r)`` (px) in which the ring
+    just outside it (:func:`ring_counts`) holds events at least 0.3 times as dense as the disk, from
+    every ``step``-th event of ``x, y``."""
+    counts, n_in, _ = ring_counts(x, y, cx, cy, r, n_sectors, step)
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
     dens_in = n_in / (np.pi * r * r)
     ring_area = np.pi * (r1 * r1 - r0 * r0) / n_sectors
     dense = 0
     for s in range(n_sectors):
-        if counts[s] / ring_area >= 0.3 * dens_in:
+        if (counts[0, s] + counts[1, s]) / ring_area >= 0.3 * dens_in:
             dense += 1
     return dense / n_sectors
 
@@ -860,5 +877,6 @@ def load() -> None:
     moved_near(t, x, y, 0, 0.0, 0.0, 0.0, 0.0, 1.0)
     surrounded(x, y, 0.0, 0.0, 1.0, 12, 1)
     surrounded(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 12, 1)
+    ring_counts(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 24, 1)
     dens = cell_counts(x, y, 4, 1, 1)
     cluster_stats(np.zeros((1, 1), np.int32), dens, 1)

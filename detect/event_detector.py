@@ -112,7 +112,8 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
         Larger inputs are subsampled evenly to this many events (speed).
     ignore : ndarray of bool, shape (N,), optional
         Events that cannot be boundary points (e.g. on the sensor border, where
-        the outermost events are cut by the sensor rather than by the ball's rim).
+        the outermost events are cut by the sensor rather than by the ball's rim, or where
+        something touches the ball) and do not count in the score's share of events inside.
 
     Returns
     -------
@@ -146,7 +147,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     if not (r_range[0] <= r <= r_range[1]):
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2
-    inside = np.count_nonzero(d2 <= (r + 1.5) ** 2) / len(d2)
+    inside = max(np.count_nonzero((d2 <= (r + 1.5) ** 2) & ~ignore), 1) / max(np.count_nonzero(~ignore), 1)
     disc_fill = np.count_nonzero(d2 <= (0.7 * r) ** 2) / len(d2)
     coverage = n_in / n_sectors
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r

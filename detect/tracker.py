@@ -12,14 +12,17 @@ searching, ``track_events`` around the prediction while tracking, at most
   the prediction gives the search region, the velocity for motion compensation
   and the gate; a gated fit updates the filter, weighted by its centre sigma
   (larger where its rim points cover a shorter arc). A plain ball lit from one
-  side is fitted on the directions where its rim shows (``detect.limb``). The
-  flight ends when the ball leaves the sensor, after ``max_misses`` slices
-  without a fit, or when confident fits fall outside the gate twice in a row
-  (hit or bounce: those fits start the next flight's detections);
+  side is fitted on the directions where its rim shows (``detect.limb``), a ball
+  that something touches (a racket's head, an arm) on the directions where nothing
+  does (:func:`_touched`). The flight ends when the ball leaves the sensor, after
+  ``max_misses`` slices without a fit (not counted for up to ``CLUTTER_COAST_US``
+  while the ball is hidden in clutter), or when confident fits fall outside the gate
+  twice in a row (hit or bounce: those fits start the next flight's detections);
 * the search looks for balls not yet tracked: the density map of the window's
   events (those near a tracked ball left out) gives candidate clusters; each is
   motion-compensated with its own centroid velocity and fitted with a circle;
-  each circle-like one (score >= ``min_score``, radius in ``r_range``) is a
+  each circle-like one (score >= ``min_score``, radius in ``r_range``) not on a
+  stem (a racket's or a bat's head on its handle: :func:`_on_a_stem`) is a
   tentative detection, and ``confirm_slices`` consistent detections in a row
   start a new flight. With no flight it runs every slice; while balls are
   tracked, one slice in ``SEARCH_STRIDE_TRACKING`` (every slice while a
@@ -107,6 +110,88 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
     Densities are ratios, so more than ``max_events`` events are thinned evenly first."""
     step = max(1, -(-len(x) // max_events))
     return _kernels.surrounded(np.asarray(x), np.asarray(y), fit.cx, fit.cy, fit.r, n_sectors, step)
+
+
+STEM_SECTORS = 24
+"""Directions round a circle in which :func:`_on_a_stem` looks for something thin reaching out."""
+
+STEM_MAX_SECTORS = 3
+"""A stem is at most this many neighbouring directions wide (45 deg): a racket's handle is a fifth of its
+head's width, a bat's two fifths; a ball's neighbours (an arm, a body, another ball) span more."""
+
+STEM_MAX_RUNS = 2
+"""A stem stands alone: a handle, or an arm's two edges leaving a hand; a ring holding more runs of
+dense directions is patchy all round (a ball's own texture outside a circle fitted too small)."""
+
+STEM_DENSITY = 0.2
+"""A stem's events are at least this many times as dense as the disk's in the outer half of the ring
+(by radius), and in the inner half too (a line reaching out from the rim, not a hot pixel or a blob
+at one distance); its width is that of the outer half's run (the inner half also holds what is
+beside the rim: an elliptical head's ends, an arm's nearest edge)."""
+
+
+def _on_a_stem(x: np.ndarray, y: np.ndarray, fit: CircleFit, max_events: int = _MAX_SURROUND_EVENTS) -> bool:
+    """Whether circle ``fit`` is a round thing on a stem: a racket's or a bat's head on its handle, a
+    hand at the end of an arm. In the ring just outside it (:func:`detect._kernels.ring_counts`, with
+    :data:`STEM_SECTORS` directions), some run of neighbouring directions at most
+    :data:`STEM_MAX_SECTORS` wide holds events at least :data:`STEM_DENSITY` times as dense as the
+    disk in the ring's outer half (and the directions on either side of it do not), and in its inner
+    half too, with at most :data:`STEM_MAX_RUNS` such runs round it. A ball in flight has nothing
+    attached: where flights started on the detection benchmark's arm, bounce, two-ball, still and
+    volleyball rows, its ring held at most 0.1 of its disk's density in any direction."""
+    step = max(1, -(-len(x) // max_events))
+    counts, n_in, _ = _kernels.ring_counts(np.asarray(x), np.asarray(y), fit.cx, fit.cy, fit.r, STEM_SECTORS, step)
+    if n_in == 0:
+        return False
+    r0, r1 = 1.15 * fit.r + 1.0, 1.5 * fit.r + 2.0
+    rm = 0.5 * (r0 + r1)
+    dens_in = n_in / (np.pi * fit.r * fit.r)
+    half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
+    inner, outer = counts / half_area >= STEM_DENSITY * dens_in
+    if outer.all() or not outer.any():
+        return False
+    # from a sparse direction round to it again: each run of dense ones starts and ends in between
+    shift = int(np.argmin(outer))
+    inner = np.roll(inner, -shift)
+    edges = np.flatnonzero(np.diff(np.append(np.roll(outer, -shift), False).astype(np.int8))) + 1
+    if len(edges) > 2 * STEM_MAX_RUNS:  # patches all round: texture or clutter, not a handle
+        return False
+    return any(b - a <= STEM_MAX_SECTORS and inner[a:b].any() for a, b in zip(edges[::2], edges[1::2]))
+
+
+INTRUDED_DENSITY = 0.3
+"""A direction round a tracked ball in which the ring just outside its predicted rim holds events at
+least this many times as dense as the disk's outer band (``0.7 r`` to ``r``: a plain ball fires
+there too, not inside), in both its inner and outer half (something reaching out from the rim, not
+the ball itself a few pixels on after a bounce), is *touched* (a racket's head, an arm, another ball
+beside it): the rim fit takes no boundary point there."""
+
+
+TOUCHED_MAX = 2 / 3
+"""A ball touched on more of its sides than this is hidden in clutter (the rest of its rim is too
+short a fit: a third of it fits at a score of at most a third, about the least a fit needs)."""
+
+CLUTTER_COAST_US = 40_000
+"""A tracked ball hidden in clutter (touched on more than :data:`TOUCHED_MAX` of its sides) is not
+counted missing for this long after its last update (µs): crossing in front of a racket's head
+takes 10-20 ms on the benchmark, and a flight's circles are interpolated over gaps of up to 50 ms
+(``detect.spin_windows``)."""
+
+
+def _touched(xc: np.ndarray, yc: np.ndarray, cx: float, cy: float, r: float,
+             max_events: int = _MAX_SURROUND_EVENTS) -> np.ndarray | None:
+    """The directions (of :data:`STEM_SECTORS`) round the circle ``(cx, cy, r)`` in which something
+    touches it (:data:`INTRUDED_DENSITY`; each widened by a direction on either side), from the
+    events ``(xc, yc)`` moved to the circle's time; None where nothing does."""
+    step = max(1, -(-len(xc) // max_events))
+    counts, _, n_band = _kernels.ring_counts(xc, yc, cx, cy, r, STEM_SECTORS, step)
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    band_density = n_band / (np.pi * 0.51 * r * r)
+    rm = 0.5 * (r0 + r1)
+    half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
+    dense = (counts / half_area >= INTRUDED_DENSITY * band_density).all(axis=0)
+    dense = dense | np.roll(dense, 1) | np.roll(dense, -1)
+    return dense if dense.any() else None
 
 
 def _in_clutter(fit: CircleFit, cx: float, cy: float, reach: float, x: np.ndarray, y: np.ndarray) -> bool:
@@ -572,7 +657,8 @@ class BallTracker:
             t, x, y = _kernels.kept_events(t, x, y, keep, self._hot_mask, self.width)
         self._search_slice(t, x, y, s0, s1)
 
-    def _fit(self, t, x, y, m, center0, velocity, r_range, limb: LimbModel | None = None) -> CircleFit | None:
+    def _fit(self, t, x, y, m, center0, velocity, r_range, limb: LimbModel | None = None,
+             touched: tuple | None = None) -> CircleFit | None:
         """Circle fit on events ``(t, x, y)`` moved to time ``m`` along ``velocity`` (px/s).
 
         Without ``center0`` (search), isolated events are dropped first and the
@@ -582,6 +668,8 @@ class BallTracker:
         (fewer than ``_SPARSE_FIT_EVENTS``: a dim ball, noise a large share), where
         isolated events are dropped too. With a flight's ``limb``, the fit is refined on the
         directions where the ball shows a sharp rim, and a fit of at least ``min_score`` adds to it.
+        ``touched``, ``(cx, cy, r, directions)`` (:func:`_touched`): in those directions round that
+        circle, events beyond ``0.8 r`` are no boundary points (they may be what touches the ball).
         """
         # even subsample in time; a search keeps more, for the density filter to see a big ball's
         # sparse disk as dense (fit_circle then takes _MAX_FIT_EVENTS of what is left)
@@ -593,6 +681,11 @@ class BallTracker:
         xc = x - velocity[0] * dt_s
         yc = y - velocity[1] * dt_s
         border = (x == 0) | (y == 0) | (x == self.width - 1) | (y == self.height - 1)
+        if touched is not None:
+            tcx, tcy, tr, directions = touched
+            dx, dy = xc - tcx, yc - tcy
+            sector = ((np.arctan2(dy, dx) + np.pi) * (len(directions) / (2 * np.pi))).astype(np.int64) % len(directions)
+            border = border | (directions[sector] & (dx * dx + dy * dy > (0.8 * tr) ** 2))
         if center0 is None or len(xc) < _SPARSE_FIT_EVENTS:
             good = density_filter(xc, yc, min_neighbours=1)
             if not good.any():
@@ -673,12 +766,18 @@ class BallTracker:
         t, x, y, start = win
         xc, yc, ts, xs, ys = _kernels.moved_near(t, x, y, m, vx, vy, cx, cy, reach)
         r_rng = (max(self.r_range[0], 0.6 * r), min(self.r_range[1], 1.6 * r))
-        fit = self._fit(ts, xs, ys, m, (cx, cy), (vx, vy), r_rng, fl.limb) if len(ts) >= 12 else None
+        touched = _touched(xc, yc, cx, cy, r)
+        hidden = touched is not None and touched.mean() > TOUCHED_MAX  # in clutter: no fit can tell
+        fit = self._fit(ts, xs, ys, m, (cx, cy), (vx, vy), r_rng, fl.limb,
+                        None if touched is None or hidden else (cx, cy, r, touched)) if len(ts) >= 12 else None
         if fit is not None and _in_clutter(fit, cx, cy, reach, xc, yc):
             fit = None
         if fit is None or fit.score < self.min_score:
             if not self._track_ends(fl, (t, x, y, start), slice_events, s1, around, r_rng):
-                fl.misses += 1
+                # a ball hidden in clutter (passing in front of a racket's strings or a body) is not
+                # lost: the flight goes on along its prediction for up to CLUTTER_COAST_US
+                if not (hidden and m - fl.kf.t_us <= CLUTTER_COAST_US):
+                    fl.misses += 1
                 if fl.misses >= self.max_misses:
                     self._end_flight(fl)
             return
@@ -851,6 +950,16 @@ class BallTracker:
             if split:
                 fit, v0, (ts, xs, ys) = self._fit_split(ts, xs, ys, m, v0)
             if fit is None or fit.score < self.min_score:
+                rejected.append((box, 0, coarse, strikes))
+                continue
+            # a round thing on a handle (a racket's or a bat's head) is no ball: its ring, from all the
+            # window's events there (the handle may be a cluster of its own)
+            reach = 1.5 * fit.r + 3.0 + 0.5e-6 * (s1 - start) * float(np.hypot(*v0))
+            _, tr, xr, yr = _kernels.box_select(t, x, y, *_box_pixels(fit.cx - reach, fit.cx + reach, fit.cy - reach,
+                                                                      fit.cy + reach, self.width, self.height),
+                                                _NO_MASK, self.width)
+            dt_s = (tr - m) * 1e-6
+            if _on_a_stem(xr - v0[0] * dt_s, yr - v0[1] * dt_s, fit):
                 rejected.append((box, 0, coarse, strikes))
                 continue
             # a flight starts only on a ball (nearly) fully on the sensor: a partly visible one has a

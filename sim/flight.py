@@ -16,7 +16,7 @@ from .esim import (SensorModel, SensorState, flicker_events, get_sensor_model, m
 from .frames import SyncBox, render_frames
 from .recording import Recording
 from .rotation import random_rotation, unit
-from .scene import Arm, Camera, Player, Scene, court_background
+from .scene import Arm, Camera, Player, Racket, Scene, court_background
 
 G_M_S2 = 9.81
 
@@ -62,10 +62,11 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
     background : {"court", "plain"}
     noise_rate_hz : float
         Background-activity noise per pixel (Hz); ``hot_pixels`` pixels fire at ``hot_rate_hz``.
-    distractors : sequence of {"player", "ball", "arm"}
-        A walking player-like blob, a second (soccer) ball crossing the view, and/or an arm
+    distractors : sequence of {"player", "ball", "arm", "racket", "paddle"}
+        A walking player-like blob, a second (soccer) ball crossing the view, an arm
         (0.6 m by 9 cm at the ball's scale) swinging past the ball's path at mid-flight, its
-        hand passing a few pixels from the ball.
+        hand passing a few pixels from the ball, and/or such an arm holding a tennis racket or a
+        table-tennis bat whose head passes a few pixels from the ball (:class:`sim.scene.Racket`).
     fps : float, optional
         Frame camera rate (60/120/240/480 ...); None: no frames.
     exposure_s : float or callable, optional
@@ -181,8 +182,33 @@ def flight(texture: str = "volleyball", rps: float = 8.0, axis=(0.0, 0.0, 1.0), 
             objects.append(a)
             dis_truth.append({"kind": "arm", "pivot_px": list(pivot), "length_px": length, "width_px": wid,
                               "angle0_rad": a.angle0_rad, "omega_rad_s": omega_arm})
+        elif kind in ("racket", "paddle"):
+            # a tennis racket (head 32 x 25 cm, strings every 15 mm) or a table-tennis bat (15 cm across),
+            # swung at 8-14 rad/s from the shoulder, its head passing a few pixels from the ball at mid-flight
+            # (7.7-13.4 m/s at the head's centre for a tennis racket: a slow stroke)
+            t_mid = 0.5 * duration_s
+            cx, cy, r_mid = ball.circle(cam, [t_mid])[0]
+            m = px_per_m
+            dims = dict(arm_px=0.6 * m, arm_width_px=0.09 * m, handle_px=0.2 * m, handle_width_px=0.03 * m,
+                        head_a_px=0.16 * m, head_b_px=0.125 * m, rim_px=0.012 * m, string_px=max(0.003 * m, 0.8),
+                        string_spacing_px=0.015 * m) if kind == "racket" else \
+                dict(arm_px=0.6 * m, arm_width_px=0.09 * m, handle_px=0.1 * m, handle_width_px=0.03 * m,
+                     head_a_px=0.08 * m, head_b_px=0.075 * m, rim_px=max(0.004 * m, 1.0))
+            side = dis_rng.choice([-1, 1])
+            gap = dis_rng.uniform(2.0, 6.0)
+            # swung to meet the ball (its head moving against the ball's motion across the image), not
+            # carried along beside it
+            vx_mid = float(ball.image_velocity(cam, [t_mid])[0, 0])
+            omega_r = -(np.sign(vx_mid) or 1.0) * dis_rng.uniform(8.0, 14.0)
+            reach = dims["arm_px"] + dims["handle_px"] + dims["head_a_px"]
+            pivot = (cx + side * (r_mid + dims["head_b_px"] + gap), cy + reach)
+            rk = Racket(pivot_px=pivot, angle0_rad=-np.pi / 2 - omega_r * t_mid, omega_rad_s=omega_r, kind=kind,
+                        **dims)
+            objects.append(rk)
+            dis_truth.append({"kind": kind, "pivot_px": list(pivot), "angle0_rad": rk.angle0_rad,
+                              "omega_rad_s": omega_r, **dims})
         else:
-            raise ValueError(f"unknown distractor {kind!r}; choose 'player', 'ball' or 'arm'")
+            raise ValueError(f"unknown distractor {kind!r}; choose 'player', 'ball', 'arm', 'racket' or 'paddle'")
     objects.append(ball)  # the tracked ball is in front
     if background not in ("court", "plain"):
         raise ValueError(f"background must be 'court' or 'plain', got {background!r}")

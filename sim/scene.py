@@ -355,6 +355,99 @@ class Arm:
         return np.where(s < 0.4, 0.2, self.skin), cov
 
 
+
+def _capsule_cover(s, q, s0: float, s1: float, width_px: float):
+    """Anti-aliased coverage of a capsule from ``s0`` to ``s1`` along ``s`` (px), ``width_px`` wide."""
+    d = np.hypot(s - np.clip(s, s0, s1), q)
+    return np.clip(0.5 * width_px - d + 0.5, 0.0, 1.0)
+
+
+@dataclass
+class Racket:
+    """A racket or bat swung past the ball: arm, handle and an elliptical head turning about a
+    shoulder pivot.
+
+    Geometry in pixels (orthographic sensor coordinates): from ``pivot_px`` everything points at
+    ``angle0_rad + omega_rad_s t`` (image angle, x right, y down); the arm (``arm_px`` long,
+    ``arm_width_px`` wide) ends at the wrist, the handle (``handle_px`` by ``handle_width_px``)
+    follows, then the head, an ellipse with semi-axes ``head_a_px`` along the shaft and
+    ``head_b_px`` across it.  ``kind="racket"`` (tennis): a dark frame ``rim_px`` wide round a
+    face of bright strings ``string_px`` wide every ``string_spacing_px`` (the court shows
+    between them); ``kind="paddle"`` (table tennis): a solid dark rubber face with a light wooden
+    edge ``rim_px`` wide, round like a ball and larger than it.
+    """
+
+    pivot_px: tuple[float, float] = (300.0, 400.0)
+    angle0_rad: float = -np.pi / 2
+    omega_rad_s: float = 10.0
+    arm_px: float = 300.0
+    arm_width_px: float = 45.0
+    handle_px: float = 100.0
+    handle_width_px: float = 15.0
+    head_a_px: float = 80.0
+    head_b_px: float = 62.0
+    rim_px: float = 6.0
+    kind: str = "racket"
+    string_px: float = 1.5
+    string_spacing_px: float = 7.5
+    skin: float = 0.55
+
+    def __post_init__(self):
+        if self.kind not in ("racket", "paddle"):
+            raise ValueError(f"kind must be 'racket' or 'paddle', got {self.kind!r}")
+
+    @property
+    def length_px(self) -> float:
+        """From the pivot to the head's far end (px)."""
+        return self.arm_px + self.handle_px + 2 * self.head_a_px
+
+    def head_center(self, t_s) -> tuple[np.ndarray, np.ndarray]:
+        """The head's centre (px) at times ``t_s``."""
+        a = self.angle0_rad + self.omega_rad_s * np.asarray(t_s, np.float64)
+        reach = self.arm_px + self.handle_px + self.head_a_px
+        return self.pivot_px[0] + reach * np.cos(a), self.pivot_px[1] + reach * np.sin(a)
+
+    def max_speed_px_s(self, cam: Camera, t_s: float) -> float:
+        """Fastest image motion (px/s): the head's far end."""
+        return abs(self.omega_rad_s) * self.length_px
+
+    def bbox(self, cam: Camera, t0_s: float, t1_s: float) -> tuple[float, float, float, float]:
+        """Image bounding box ``(x0, y0, x1, y1)`` (px) over ``[t0_s, t1_s]``."""
+        t = np.linspace(t0_s, t1_s, max(2, int(abs(self.omega_rad_s) * abs(t1_s - t0_s) / 0.05) + 2))
+        a = self.angle0_rad + self.omega_rad_s * t
+        x = self.pivot_px[0] + self.length_px * np.cos(a)
+        y = self.pivot_px[1] + self.length_px * np.sin(a)
+        m = max(self.head_b_px, 0.5 * self.arm_width_px) + 2
+        return (min(x.min(), self.pivot_px[0]) - m, min(y.min(), self.pivot_px[1]) - m,
+                max(x.max(), self.pivot_px[0]) + m, max(y.max(), self.pivot_px[1]) + m)
+
+    def render(self, cam: Camera, u, v, t_s, light, ambient):
+        """Brightness and anti-aliased coverage (K, N) at pixels ``(u, v)``, times ``t_s`` (K,)."""
+        t = np.atleast_1d(np.asarray(t_s, np.float64))[:, None]
+        a = self.angle0_rad + self.omega_rad_s * t
+        dx, dy = u[None, :] - self.pivot_px[0], v[None, :] - self.pivot_px[1]
+        s = dx * np.cos(a) + dy * np.sin(a)  # along the shaft
+        q = -dx * np.sin(a) + dy * np.cos(a)  # across it
+        wrist = self.arm_px
+        neck = wrist + self.handle_px
+        arm = _capsule_cover(s, q, 0.0, wrist, self.arm_width_px)
+        handle = _capsule_cover(s, q, wrist, neck + self.rim_px, self.handle_width_px)
+        x, y = (s - neck - self.head_a_px) / self.head_a_px, q / self.head_b_px
+        inset = (1.0 - np.sqrt(x * x + y * y)) * min(self.head_a_px, self.head_b_px)  # px inside the rim, about
+        head = np.clip(inset + 0.5, 0.0, 1.0)
+        rim = np.clip(self.rim_px - inset + 0.5, 0.0, 1.0)  # 1 on the rim, 0 well inside it
+        if self.kind == "paddle":
+            face_cov, face = head, rim * 0.6 + (1 - rim) * 0.12
+        else:  # strings in the head's own frame: the court shows between them
+            def strings(c):
+                d = np.abs((c + 0.5 * self.string_spacing_px) % self.string_spacing_px - 0.5 * self.string_spacing_px)
+                return np.clip(0.5 * self.string_px - d + 0.5, 0.0, 1.0)
+            mesh = np.maximum(strings(s - neck), strings(q))
+            face_cov, face = head * np.maximum(rim, mesh), rim * 0.08 + (1 - rim) * 0.85
+        cov = np.maximum(np.maximum(arm, handle), face_cov)
+        I = np.where(face_cov > 0, face, np.where(handle > 0, 0.1, np.where(s < 0.4 * wrist, 0.2, self.skin)))
+        return I, cov
+
 def disjoint_groups(items, n_pixels: int) -> list[tuple[np.ndarray, int]]:
     """Merge per-object pixel sets that need ``n`` samples into disjoint groups.
 

@@ -13,7 +13,7 @@ from detect import BallTracker, track_ball
 from detect.event_detector import density_filter, find_candidates, fit_circle
 from detect.hot_pixels import HotPixelMap
 from detect.kalman import CircleKalman
-from detect.tracker import _box_pixels, _continues, _surrounded
+from detect.tracker import _box_pixels, _continues, _on_a_stem, _surrounded, _touched
 from detect.event_detector import CircleFit
 
 W, H = 320, 240
@@ -308,6 +308,43 @@ def test_surrounded_counts_the_ring_sectors_that_hold_events():
     assert _surrounded(x[order], y[order], fit) == pytest.approx(0.5, abs=1 / 12)
     assert _surrounded(disk[0], disk[1], fit) == 0.0
 
+
+
+def _strip(rng, n, x0, x1, y0, y1):
+    return rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)
+
+
+def test_a_round_head_on_a_handle_is_on_a_stem_and_a_ball_beside_an_arm_is_not():
+    """_on_a_stem: a disk with a handle reaching out of it (a racket's or a bat's head, a fifth of
+    its width) is; the disk alone, the disk beside a wide arm passing it, a hot pixel in its ring, and a
+    disk that is all that is there are not."""
+    rng = np.random.default_rng(11)
+    fit = CircleFit(cx=100.0, cy=100.0, r=30.0, score=1.0, sigma_px=0.1, n_events=0)
+    head = _disk(rng, 20_000, 100, 100, 30)
+    density = 20_000 / (np.pi * 30 ** 2)
+    handle = _strip(rng, int(density * 6 * 40), 97, 103, 128, 168)  # 6 px wide, down from the rim
+    arm = _strip(rng, int(density * 40 * 90), 136, 176, 55, 145)  # 40 px wide, 6 px beside the rim
+    hot = (np.full(3000, 100.0), np.full(3000, 140.0))
+    join = lambda *parts: (np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]))
+    assert _on_a_stem(*join(head, handle), fit)
+    assert not _on_a_stem(*head, fit)
+    assert not _on_a_stem(*join(head, arm), fit)
+    assert not _on_a_stem(*join(head, hot), fit)
+    assert _on_a_stem(*join(head, handle, arm), fit)  # (the arm holding it does not hide the handle)
+
+
+def test_the_sides_where_something_touches_a_ball_are_told_apart():
+    """_touched: a dense blob against the ball's right side marks the directions to its right (and
+    none on the left); a ball alone, none."""
+    rng = np.random.default_rng(12)
+    ball = _disk(rng, 10_000, 100, 100, 20)
+    blob = _disk(rng, 60_000, 100 + 20 + 3 + 40, 100, 40)  # a racket's head 3 px from the rim
+    x, y = np.concatenate([ball[0], blob[0]]), np.concatenate([ball[1], blob[1]])
+    touched = _touched(x, y, 100.0, 100.0, 20.0)
+    assert touched is not None and 3 <= touched.sum() <= 12
+    angle = -np.pi + (np.flatnonzero(touched) + 0.5) * 2 * np.pi / len(touched)
+    assert np.all(np.cos(angle) > 0)  # all to the right
+    assert _touched(*ball, 100.0, 100.0, 20.0) is None
 
 def test_hot_pixel_map_flags_lonely_busy_pixels_only():
     rng = np.random.default_rng(5)

@@ -50,6 +50,34 @@ def test_arm_swings_past_the_ball_a_few_pixels_away():
     assert np.all(np.abs(ev["x"][far] - arm["pivot_px"][0]) < 0.5 * arm["width_px"] + arm["length_px"] * 0.5)
 
 
+
+@pytest.mark.parametrize("kind", ["racket", "paddle"])
+def test_racket_head_is_swung_against_the_ball_and_passes_it_a_few_pixels_away(kind):
+    rec = sim.flight(texture="tennis" if kind == "racket" else "tabletennis", rps=5.0, radius_px=8.0, width=W,
+                     height=H, duration_s=0.03, start_px=(40.0, 80.0), velocity_px_s=(3000.0, 0.0),
+                     gravity_px_s2=0.0, background="plain", distractors=(kind,), noise_rate_hz=0.0, hot_pixels=0,
+                     seed=3)
+    (rk,) = rec.truth["distractors"]
+    assert rk["kind"] == kind
+    scale = 8.0 / sim.balls.BALL_RADIUS_M["tennis" if kind == "racket" else "tabletennis"]
+    head = (0.16, 0.125) if kind == "racket" else (0.08, 0.075)  # m: a tennis racket's, a bat's
+    assert (rk["head_a_px"], rk["head_b_px"]) == pytest.approx((head[0] * scale, head[1] * scale))
+    racket = sim.scene.Racket(**{k: (tuple(v) if k == "pivot_px" else v) for k, v in rk.items()})
+    tt = rec.truth_track()
+    i = np.searchsorted(tt.t_us, 15_000)  # mid-flight: the head beside the ball, its rim 2-6 px from the ball's
+    hx, hy = racket.head_center(15_000e-6)
+    assert hy == pytest.approx(tt.cy[i]) and 2.0 <= abs(hx - tt.cx[i]) - tt.r[i] - rk["head_b_px"] <= 6.0
+    # swung to meet the ball: the head moves against it
+    assert (racket.head_center(16_000e-6)[0] - hx) * tt.vx[i] < 0
+    # and it fires, along its handle too (below the head, far from the ball)
+    ev = rec.events
+    mid = (ev["t"] > 14_000) & (ev["t"] < 16_000)
+    handle = mid & (np.abs(ev["x"] - hx) < 10) & (ev["y"] > hy + rk["head_a_px"] + 5) & \
+        (ev["y"] < hy + rk["head_a_px"] + rk["handle_px"] - 5)
+    assert handle.sum() > 20
+    with pytest.raises(ValueError, match="kind"):
+        sim.scene.Racket(kind="bat")
+
 def test_looming_ball_grows_as_its_distance_shrinks():
     f_px, r0 = 300.0, 12.0
     z0 = sim.balls.BALL_RADIUS_M["volleyball"] * f_px / r0
