@@ -752,15 +752,30 @@ def ring_counts(x, y, cx, cy, r, n_sectors, step):
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def surrounded(x, y, cx, cy, r, n_sectors, step):
     """Share of the ``n_sectors`` directions around the circle ``(cx, cy, r)`` (px) in which the ring
-    just outside it (:func:`ring_counts`) holds events at least 0.3 times as dense as the disk, from
-    every ``step``-th event of ``x, y``."""
-    counts, n_in, _ = ring_counts(x, y, cx, cy, r, n_sectors, step)
+    just outside it (``1.15 r + 1`` to ``1.5 r + 2``) holds events at least 0.3 times as dense as the
+    disk, from every ``step``-th event of ``x, y`` (px, (N,) float64 or int32), in float32. Its own
+    loop, not :func:`ring_counts`': through that, the tracker's surround tests took 0.064 s instead of
+    0.015 s on ``bench/replay_bench.py``'s 20 Mev/s session (752 calls, profiled)."""
     r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    in2, r02, r12 = np.float32(r * r), np.float32(r0 * r0), np.float32(r1 * r1)
+    fcx, fcy = np.float32(cx), np.float32(cy)
+    to_sector = np.float32(n_sectors / (2.0 * np.pi))
+    counts = np.zeros(n_sectors, np.int64)
+    n_in = 0
+    for i in range(0, len(x), step):
+        dx = np.float32(x[i]) - fcx
+        dy = np.float32(y[i]) - fcy
+        d2 = dx * dx + dy * dy
+        if d2 < in2:
+            n_in += 1
+        elif r02 < d2 < r12:
+            s = int((math.atan2(dy, dx) + np.float32(np.pi)) * to_sector) % n_sectors
+            counts[s] += 1
     dens_in = n_in / (np.pi * r * r)
     ring_area = np.pi * (r1 * r1 - r0 * r0) / n_sectors
     dense = 0
     for s in range(n_sectors):
-        if (counts[0, s] + counts[1, s]) / ring_area >= 0.3 * dens_in:
+        if counts[s] / ring_area >= 0.3 * dens_in:
             dense += 1
     return dense / n_sectors
 
