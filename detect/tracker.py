@@ -179,11 +179,11 @@ takes 10-20 ms on the benchmark, and a flight's circles are interpolated over ga
 
 
 def _touched(xc: np.ndarray, yc: np.ndarray, cx: float, cy: float, r: float,
-             max_events: int = 4000) -> np.ndarray | None:
+             max_events: int = _MAX_SURROUND_EVENTS) -> np.ndarray | None:
     """The directions (of :data:`STEM_SECTORS`) round the circle ``(cx, cy, r)`` in which something
     touches it (:data:`INTRUDED_DENSITY`; each widened by a direction on either side), from the
-    events ``(xc, yc)`` moved to the circle's time (more than ``max_events`` thinned evenly: it runs on
-    every tracking window); None where nothing does."""
+    events ``(xc, yc)`` moved to the circle's time (more than ``max_events`` thinned evenly); None where
+    nothing does."""
     step = max(1, -(-len(xc) // max_events))
     counts, _, n_band = _kernels.ring_counts(xc, yc, cx, cy, r, STEM_SECTORS, step)
     r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
