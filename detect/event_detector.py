@@ -147,7 +147,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray, *, center0: tuple[float, float], n_
     if not (r_range[0] <= r <= r_range[1]):
         return None
     d2 = (x - cx) ** 2 + (y - cy) ** 2
-    inside = max(np.count_nonzero((d2 <= (r + 1.5) ** 2) & ~ignore), 1) / max(np.count_nonzero(~ignore), 1)
+    inside = np.count_nonzero((d2 <= (r + 1.5) ** 2) & ~ignore) / max(np.count_nonzero(~ignore), 1)
     disc_fill = np.count_nonzero(d2 <= (0.7 * r) ** 2) / len(d2)
     coverage = n_in / n_sectors
     sigma_rim = max(1.5, 0.08 * r)  # a rim found from sparse texture scatters by a few % of r

@@ -113,7 +113,23 @@ def _surrounded(x: np.ndarray, y: np.ndarray, fit: CircleFit, n_sectors: int = 1
 
 
 STEM_SECTORS = 24
-"""Directions round a circle in which :func:`_on_a_stem` looks for something thin reaching out."""
+"""Directions round a circle in which :func:`_on_a_stem` looks for something thin reaching out, and
+:func:`_touched` for something beside it."""
+
+
+def _ring_densities(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float,
+                    max_events: int) -> tuple[np.ndarray, float, float]:
+    """Event densities (events/px², from the events ``(x, y)``, more than ``max_events`` thinned
+    evenly) round the circle ``(cx, cy, r)``: in the ring just outside it
+    (:func:`detect._kernels.ring_counts`), per half (inner, outer) and direction (of
+    :data:`STEM_SECTORS`), shape (2, STEM_SECTORS); in the disk; and in its outer band (``0.7 r`` to
+    ``r``)."""
+    step = max(1, -(-len(x) // max_events))
+    counts, n_in, n_band = _kernels.ring_counts(np.asarray(x), np.asarray(y), cx, cy, r, STEM_SECTORS, step)
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    rm = 0.5 * (r0 + r1)
+    half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
+    return counts / half_area, n_in / (np.pi * r * r), n_band / (np.pi * 0.51 * r * r)
 
 STEM_MAX_SECTORS = 3
 """A stem is at most this many neighbouring directions wide (45 deg): a racket's handle is a fifth of its
@@ -139,15 +155,10 @@ def _on_a_stem(x: np.ndarray, y: np.ndarray, fit: CircleFit, max_events: int = _
     half too, with at most :data:`STEM_MAX_RUNS` such runs round it. A ball in flight has nothing
     attached: where flights started on the detection benchmark's arm, bounce, two-ball, still and
     volleyball rows, its ring held at most 0.1 of its disk's density in any direction."""
-    step = max(1, -(-len(x) // max_events))
-    counts, n_in, _ = _kernels.ring_counts(np.asarray(x), np.asarray(y), fit.cx, fit.cy, fit.r, STEM_SECTORS, step)
-    if n_in == 0:
+    ring, dens_in, _ = _ring_densities(x, y, fit.cx, fit.cy, fit.r, max_events)
+    if dens_in == 0:
         return False
-    r0, r1 = 1.15 * fit.r + 1.0, 1.5 * fit.r + 2.0
-    rm = 0.5 * (r0 + r1)
-    dens_in = n_in / (np.pi * fit.r * fit.r)
-    half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
-    inner, outer = counts / half_area >= STEM_DENSITY * dens_in
+    inner, outer = ring >= STEM_DENSITY * dens_in
     if outer.all() or not outer.any():
         return False
     # from a sparse direction round to it again: each run of dense ones starts and ends in between
@@ -184,13 +195,8 @@ def _touched(xc: np.ndarray, yc: np.ndarray, cx: float, cy: float, r: float,
     touches it (:data:`INTRUDED_DENSITY`; each widened by a direction on either side), from the
     events ``(xc, yc)`` moved to the circle's time (more than ``max_events`` thinned evenly); None where
     nothing does."""
-    step = max(1, -(-len(xc) // max_events))
-    counts, _, n_band = _kernels.ring_counts(xc, yc, cx, cy, r, STEM_SECTORS, step)
-    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    band_density = n_band / (np.pi * 0.51 * r * r)
-    rm = 0.5 * (r0 + r1)
-    half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
-    dense = (counts / half_area >= INTRUDED_DENSITY * band_density).all(axis=0)
+    ring, _, band_density = _ring_densities(xc, yc, cx, cy, r, max_events)
+    dense = (ring >= INTRUDED_DENSITY * band_density).all(axis=0)
     dense = dense | np.roll(dense, 1) | np.roll(dense, -1)
     return dense if dense.any() else None
 

@@ -276,6 +276,7 @@ def on_track_disc(t_us, x, y, t_rows, cx_rows, cy_rows, r_rows, inner):
         k += dx * dx + dy * dy <= r * r
     return idx[:k], out[0, :k], out[1, :k], out[2, :k] / inner
 
+
 def load() -> None:
     """Load the compiled loops now (from Numba's cache; compiled on first use after an install)."""
     p = np.zeros((3, 1), np.float32)
