@@ -178,6 +178,16 @@ the ball itself a few pixels on after a bounce), is *touched* (a racket's head, 
 beside it): the rim fit takes no boundary point there."""
 
 
+TOUCHING_DENSITY, TOUCHING_MAX_SECTORS, TOUCHING_FILL = 0.1, 6, 0.8
+"""Thin edges beside a ball that fires all over its disk (an arm's or a hand's two edges, a few lines of
+events against a textured ball's dense disk: 0.13-0.28 of its outer band's density where a hand touched
+a ball of r 10 px, ``detect_bench`` row ``arm-small``, seed 26) touch it too: in a ring that is otherwise
+empty (at most ``TOUCHING_MAX_SECTORS`` directions hold events in both its halves, none as densely as
+:data:`INTRUDED_DENSITY`: after a bounce the ball's own events lie there) round a ball whose disk is at
+least ``TOUCHING_FILL`` times as dense as its band, a direction holding ``TOUCHING_DENSITY`` of the
+band's density in both halves. (A plain ball, firing at its rim only, is left to :data:`INTRUDED_DENSITY`: the
+128x128 sensor's trails and leak events beside one split its flights.)"""
+
 TOUCHED_MAX = 2 / 3
 """A ball touched on more of its sides than this is hidden in clutter (the rest of its rim is too
 short a fit: a third of it fits at a score of at most a third, about the least a fit needs)."""
@@ -192,11 +202,15 @@ takes 10-20 ms on the benchmark, and a flight's circles are interpolated over ga
 def _touched(xc: np.ndarray, yc: np.ndarray, cx: float, cy: float, r: float,
              max_events: int = _MAX_SURROUND_EVENTS) -> np.ndarray | None:
     """The directions (of :data:`STEM_SECTORS`) round the circle ``(cx, cy, r)`` in which something
-    touches it (:data:`INTRUDED_DENSITY`; each widened by a direction on either side), from the
-    events ``(xc, yc)`` moved to the circle's time (more than ``max_events`` thinned evenly); None where
-    nothing does."""
-    ring, _, band_density = _ring_densities(xc, yc, cx, cy, r, max_events)
-    dense = (ring >= INTRUDED_DENSITY * band_density).all(axis=0)
+    touches it (:data:`INTRUDED_DENSITY`, or thin edges beside a textured ball, :data:`TOUCHING_DENSITY`;
+    each widened by a direction on either side), from the events ``(xc, yc)`` moved to the circle's
+    time (more than ``max_events`` thinned evenly); None where nothing does."""
+    ring, disk_density, band_density = _ring_densities(xc, yc, cx, cy, r, max_events)
+    lowest = ring.min(axis=0)  # of the ring's two halves
+    dense = lowest >= INTRUDED_DENSITY * band_density
+    if (not dense.any() and disk_density >= TOUCHING_FILL * band_density
+            and np.count_nonzero(lowest) <= TOUCHING_MAX_SECTORS):
+        dense = lowest >= TOUCHING_DENSITY * band_density
     dense = dense | np.roll(dense, 1) | np.roll(dense, -1)
     return dense if dense.any() else None
 

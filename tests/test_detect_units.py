@@ -346,6 +346,28 @@ def test_the_sides_where_something_touches_a_ball_are_told_apart():
     assert np.all(np.cos(angle) > 0)  # all to the right
     assert _touched(*ball, 100.0, 100.0, 20.0) is None
 
+def test_thin_edges_beside_a_textured_ball_touch_it_but_a_sparse_ring_all_round_does_not():
+    """_touched: an arm's two thin edges ending beside a ball that fires all over its disk are far less
+    dense than the disk's band, yet they touch it (the rest of its ring is empty); the same density of
+    events all round the ring (a busy background) touches no side, nor do such edges beside a plain ball."""
+    rng = np.random.default_rng(13)
+    ball = _disk(rng, 4000, 100, 100, 10)
+    edges = [np.r_[rng.uniform(111, 140, 300), rng.uniform(111, 140, 300)],
+             np.r_[np.full(300, 97.0), np.full(300, 105.0)] + rng.normal(0, 0.3, 600)]
+    x, y = np.concatenate([ball[0], edges[0]]), np.concatenate([ball[1], edges[1]])
+    touched = _touched(x, y, 100.0, 100.0, 10.0)
+    assert touched is not None and touched.sum() <= 8
+    angle = -np.pi + (np.flatnonzero(touched) + 0.5) * 2 * np.pi / len(touched)
+    assert np.all(np.cos(angle) > 0.5)  # to the right, where the edges are
+    phi, rad = rng.uniform(-np.pi, np.pi, 1000), np.sqrt(rng.uniform(12.5 ** 2, 17.0 ** 2, 1000))
+    x2, y2 = np.r_[ball[0], 100 + rad * np.cos(phi)], np.r_[ball[1], 100 + rad * np.sin(phi)]
+    assert _touched(x2, y2, 100.0, 100.0, 10.0) is None
+    # a plain ball firing at its rim only (its disk sparse against its band): trails and noise beside
+    # it are not taken for an arm's edges
+    rim = _disk(rng, 2000, 100, 100, 10, ring=True)
+    assert _touched(np.r_[rim[0], edges[0]], np.r_[rim[1], edges[1]], 100.0, 100.0, 10.0) is None
+
+
 def test_hot_pixel_map_flags_lonely_busy_pixels_only():
     rng = np.random.default_rng(5)
     hm = HotPixelMap(W, H)
