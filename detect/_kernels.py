@@ -719,6 +719,14 @@ def moved_near(t, x, y, m, vx, vy, cx, cy, reach):
     return xc, yc, _first(tn, k), _first(xn, k), _first(yn, k)
 
 
+@numba.njit(nogil=True, cache=True)
+def ring_radii(r):
+    """The ring just outside a circle of radius ``r`` (px) that :func:`ring_counts` and :func:`surrounded`
+    look at: its inner radius ``1.15 r + 1``, the radius halving it and its outer radius ``1.5 r + 2`` (px)."""
+    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    return r0, 0.5 * (r0 + r1), r1
+
+
 @numba.njit(nogil=True, cache=True, boundscheck=False)
 def ring_counts(x, y, cx, cy, r, n_sectors, step):
     """Events in each of ``n_sectors`` directions of the ring just outside the circle ``(cx, cy, r)``
@@ -726,8 +734,7 @@ def ring_counts(x, y, cx, cy, r, n_sectors, step):
     angle -pi; events inside the circle; and of those, events in its outer band (``0.7 r`` to ``r``,
     where any ball fires, a plain one too); from every ``step``-th event of ``x, y`` (px, (N,) float64
     or int32), in float32: ``(counts (2, n_sectors), n_in, n_band)``."""
-    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    rm = 0.5 * (r0 + r1)
+    r0, rm, r1 = ring_radii(r)
     in2, r02, rm2, r12 = np.float32(r * r), np.float32(r0 * r0), np.float32(rm * rm), np.float32(r1 * r1)
     band2 = np.float32(0.49 * r * r)
     fcx, fcy = np.float32(cx), np.float32(cy)
@@ -756,7 +763,7 @@ def surrounded(x, y, cx, cy, r, n_sectors, step):
     disk, from every ``step``-th event of ``x, y`` (px, (N,) float64 or int32), in float32. Its own
     loop, not :func:`ring_counts`': through that, the tracker's surround tests took 0.064 s instead of
     0.015 s on ``bench/replay_bench.py``'s 20 Mev/s session (752 calls, profiled)."""
-    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
+    r0, _, r1 = ring_radii(r)
     in2, r02, r12 = np.float32(r * r), np.float32(r0 * r0), np.float32(r1 * r1)
     fcx, fcy = np.float32(cx), np.float32(cy)
     to_sector = np.float32(n_sectors / (2.0 * np.pi))
@@ -893,5 +900,6 @@ def load() -> None:
     surrounded(x, y, 0.0, 0.0, 1.0, 12, 1)
     surrounded(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 12, 1)
     ring_counts(np.zeros(1), np.zeros(1), 0.0, 0.0, 1.0, 24, 1)
+    ring_radii(1.0)
     dens = cell_counts(x, y, 4, 1, 1)
     cluster_stats(np.zeros((1, 1), np.int32), dens, 1)

@@ -126,8 +126,7 @@ def _ring_densities(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float
     ``r``)."""
     step = max(1, -(-len(x) // max_events))
     counts, n_in, n_band = _kernels.ring_counts(np.asarray(x), np.asarray(y), cx, cy, r, STEM_SECTORS, step)
-    r0, r1 = 1.15 * r + 1.0, 1.5 * r + 2.0
-    rm = 0.5 * (r0 + r1)
+    r0, rm, r1 = _kernels.ring_radii(r)
     half_area = np.pi * np.array([[rm * rm - r0 * r0], [r1 * r1 - rm * rm]]) / STEM_SECTORS
     return counts / half_area, n_in / (np.pi * r * r), n_band / (np.pi * 0.51 * r * r)
 
@@ -771,7 +770,7 @@ class BallTracker:
         sig = float(np.sqrt(cov[0, 0] + cov[1, 1]))
         reach = r + max(3.0, 0.15 * r) + 3.0 * sig  # the rim cannot be farther out
         # a box around the swept circle first (cheap on all events), then the moving circle
-        around = max(reach, 1.5 * r + 2.0)  # the ring around the ball too: is it in clutter?
+        around = max(reach, _kernels.ring_radii(r)[2])  # the ring around the ball too: is it in clutter?
         hx = around + abs(vx) * (s1 - start) * 0.5e-6
         hy = around + abs(vy) * (s1 - start) * 0.5e-6
         fl.near, tb, xb, yb = _kernels.box_select(t, x, y, *_box_pixels(cx - hx, cx + hx, cy - hy, cy + hy, self.width,
