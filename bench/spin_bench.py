@@ -1,6 +1,6 @@
 """Spin benchmark: the courtside matrix, the seed paper's protocol and replay-like rally windows.
 
-Default: the matrix of :mod:`bench.spin_cases` (each ball texture x 30/200/800/1,200 rps x
+Default: the matrix of :mod:`bench.spin_cases` (each ball texture x 8/30/200/800/1,200 rps x
 still/translating x orthographic/perspective x ideal/realistic sensor), on the tuning seeds
 and on the held-out seeds.  Per row: median/mean axis error, rps error, success (axis < 5 deg
 and rps < 5 %), trusted windows (confidence >= 0.5), confident failures (trusted but not a

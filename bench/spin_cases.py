@@ -27,7 +27,8 @@ WIDTH, HEIGHT = 1280, 720
 FOCAL_PX = 600.0
 HELD_OUT_SEED0 = 1000
 TEXTURES = ("volleyball", "soccer", "basketball", "tennis", "logo", "baseball", "tabletennis")
-RATES_RPS = (30, 200, 800, 1200)
+# 8 rps: a float serve or a knuckle ball, whose image drifts faster than its rim turns (spin.fast.BLUR_SHIFT_FROM_DRIFT)
+RATES_RPS = (8, 30, 200, 800, 1200)
 MOTIONS = ("still", "translating")
 LENSES = ("orthographic", "perspective")
 SENSORS = ("ideal", "realistic")

@@ -70,8 +70,10 @@ class SpinEstimate:
         spread of the estimates on the two halves of the events and, for the rate, the trails the
         sensor's lag leaves behind the ball's texture (``spin.fast.estimate_fast``,
         :mod:`spin.pixel_lag`); a rate of one turn per period of the image (:mod:`spin.period`,
-        windows of several turns) has no lag term and a lower floor; with the circle's
-        uncertainty given, its share too (:func:`with_circle_sigma`); NaN for ``method="paper"``.
+        windows of several turns) has no lag term and a lower floor; for a ball whose image drifts
+        faster than its rim turns, how far the answer was moved to the contrast's peak without blur
+        (``spin.fast.BLUR_SHIFT_FROM_DRIFT``); with the circle's uncertainty given, its share too
+        (:func:`with_circle_sigma`); NaN for ``method="paper"``.
     rps_lag_pct : float
         The part of ``rps_sigma_pct`` from the sensor's lag (% of ``rps``, 1 sigma, in quadrature
         with the rest): a bias that the windows of a flight share, so averaging them does not
@@ -486,7 +488,8 @@ def _estimate(events, center, radius, t0_us, v0, v_fit, known: bool, method: str
                           dither=True, thin_to=opts.pop("thin_to", FAST_EVENTS), view=view)
         pairs = pixel_lag.bursts(events, center, radius, t0_us=int(events["t"].min()) if t0_us is None else t0_us,
                                  velocity_px_s=v0, view=view)
-        res = estimate_fast(ev, v_fit, velocity_known=known, bursts=pairs, **opts)
+        res = estimate_fast(ev, v_fit, velocity_known=known, bursts=pairs,
+                            drift_radii_s=float(np.hypot(*v0)) / float(radius), **opts)
         w, v, value, converged, confidence = res.w_rad_s, res.v_px_s, res.contrast, res.converged, res.confidence
         sigmas = {"axis_sigma_deg": res.axis_sigma_deg, "rps_sigma_pct": res.rps_sigma_pct,
                   "rps_lag_pct": res.rps_lag_pct}
