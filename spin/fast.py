@@ -424,7 +424,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     floor = PERIOD_SIGMA_FLOOR_PCT if on_period else SIGMA_FLOOR_PCT
     rps_sigma = math.hypot(max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), floor), lag)
     w = whole.w_rad_s
-    if drift_radii_s >= BLUR_SHIFT_FROM_DRIFT * omega:
+    if omega > 0 and drift_radii_s >= BLUR_SHIFT_FROM_DRIFT * omega:
         w = w + _blur_shift(ev, w, whole.v_px_s, omega, opts.get("levels", LEVELS), opts.get("max_scale", 2.0))
         if on_period:  # the period's rate stands
             w = w * (omega / float(np.linalg.norm(w)))
