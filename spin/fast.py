@@ -324,7 +324,8 @@ def _half_answer(half: BallEvents, own: FastResult, whole: FastResult, *, levels
     return runs[0].w_rad_s if runs[0].contrast >= runs[1].contrast else runs[1].w_rad_s
 
 
-def _blur_shift(ev: BallEvents, w, v, omega_rad_s: float, levels=LEVELS, max_scale: float = 2.0) -> np.ndarray:
+def _blur_shift(ev: BallEvents, w, v, omega_rad_s: float, *, levels=LEVELS, max_scale: float = 2.0,
+                hemispheres: bool = False, **_) -> np.ndarray:
     """What the contrast's peak at ``w`` (rad/s) moves by as the last level's blur goes to zero (rad/s).
 
     ``w`` refined on the last level's events (chosen for ``omega_rad_s``, velocity ``v`` px/s held) at its
@@ -333,7 +334,7 @@ def _blur_shift(ev: BallEvents, w, v, omega_rad_s: float, levels=LEVELS, max_sca
     """
     level = levels[-1]
     sub = events_for_span(ev, omega_rad_s, level[0], level[3])
-    sharp = _geometry(level, True, ev.radius_px, max_scale, True)
+    sharp = _geometry(level, True, ev.radius_px, max_scale, _far_side(len(levels) - 1, hemispheres))
     lifted = lift_moving(sub, v)
     peaks = [maximise(sub, [w], v, g, max_iterations=level[4], ftol=level[5], lifted=lifted)[0].w_rad_s
              for g in (sharp, replace(sharp, sigma=sharp.sigma * BLUR_SHIFT_FACTOR))]
@@ -425,7 +426,7 @@ def estimate_fast(ev: BallEvents, velocity_px_s, *, check: bool = True, min_half
     rps_sigma = math.hypot(max(SIGMA_SCALE_RPS * 100.0 * math.expm1(log_ratio), floor), lag)
     w = whole.w_rad_s
     if omega > 0 and drift_radii_s >= BLUR_SHIFT_FROM_DRIFT * omega:
-        w = w + _blur_shift(ev, w, whole.v_px_s, omega, opts.get("levels", LEVELS), opts.get("max_scale", 2.0))
+        w = w + _blur_shift(ev, w, whole.v_px_s, omega, **opts)
         if on_period:  # the period's rate stands
             w = w * (omega / float(np.linalg.norm(w)))
         move_deg, move_log = _deviation(w, whole.w_rad_s)

@@ -226,6 +226,7 @@ def test_a_bat_swung_past_the_ball_is_no_ball_and_does_not_lose_it(seed):
     err = np.hypot(tr.cx - np.interp(tr.t_us, tt.t_us, tt.cx), tr.cy - np.interp(tr.t_us, tt.t_us, tt.cy))
     assert np.median(err) < 1.0 and err.max() < 3.0
 
+
 def test_a_ball_a_slow_hand_touches_is_not_lost():
     """A small textured ball (r 10 px) flying past a slowly turning arm whose hand touches it from 45 ms
     to the end (``detect_bench`` row ``arm-small``, seed 26 of the extra set 17-30). The hand's thin

@@ -346,6 +346,7 @@ def test_the_sides_where_something_touches_a_ball_are_told_apart():
     assert np.all(np.cos(angle) > 0)  # all to the right
     assert _touched(*ball, 100.0, 100.0, 20.0) is None
 
+
 def test_thin_edges_beside_a_textured_ball_touch_it_but_a_sparse_ring_all_round_does_not():
     """_touched: an arm's two thin edges ending beside a ball that fires all over its disk are far less
     dense than the disk's band, yet they touch it (the rest of its ring is empty); the same density of
