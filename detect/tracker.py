@@ -35,7 +35,9 @@ returns the causal (filtered) rows as they come; the track's final rows are
 Rauch-Tung-Striebel smoothed (the best velocity for spin estimation) with a fixed
 lag: each ``block_us`` of a flight once ``smooth_lag_us`` of later updates exist
 (or the flight has ended), so that they can be used while tracking goes on
-(``take_final()``) and never change afterwards. ``finish()`` returns them all.
+(``take_final()``) and never change afterwards. ``finish()`` returns them all. A flight found to be
+no ball in its first updates (a racket's head whose handle shows, :data:`STEM_DROP_UPDATES`; one lost
+young, :data:`LOST_YOUNG_UPDATES`) ends with no final rows.
 """
 
 from __future__ import annotations
@@ -167,6 +169,24 @@ def _on_a_stem(x: np.ndarray, y: np.ndarray, fit: CircleFit, max_events: int = _
     if len(edges) > 2 * STEM_MAX_RUNS:  # patches all round: texture or clutter, not a handle
         return False
     return any(b - a <= STEM_MAX_SECTORS and inner[a:b].any() for a, b in zip(edges[::2], edges[1::2]))
+
+
+STEM_DROP_UPDATES, STEM_DROP_WITHIN = 5, 12
+"""A flight whose circle is on a stem (:func:`_on_a_stem`) in ``STEM_DROP_UPDATES`` tracking updates in a
+row among its first ``STEM_DROP_WITHIN`` was a racket's or a bat's head whose handle was hidden (behind
+the player, off the sensor) where it started: it ends, and its rows are dropped (those already
+returned by ``update`` included: they never become final; the first final rows come 100 ms after an
+update, and a flight with final rows is not checked again). A bat's face whose handle showed after it
+started (``detect_bench`` row ``paddle``, seeds 6 and 22) was on one in every update from its 4th-5th
+on; a ball beside an arm's end (a hand) or a racket's head in at most 3 in a row (rows ``arm-small``
+and ``arm-large``, seeds 1-30; among its first 5 updates on seeds 24 and 26 of ``arm-small``)."""
+
+LOST_YOUNG_UPDATES = 8
+"""A flight lost (``max_misses`` windows without a fit, or two fits outside its gate) within this many
+updates (its first detections included), none of its rows final, was no ball either: its rows are
+dropped. Where a bat's face or a racket's head started a flight (its handle hidden), it was lost after
+3-8 updates (``detect_bench`` rows ``paddle`` and ``racket``, seeds 1-16); of the balls' flights on
+every row (seeds 1-16), one was: row ``still``, seed 9, a nearly still ball found once (4 % recall)."""
 
 
 INTRUDED_DENSITY = 0.3
@@ -379,6 +399,7 @@ class _Flight:
         self.circle = (math.nan, math.nan, 0.0)  # predicted (cx, cy, r) px this slice
         self.lead_us: int | None = None  # time of the row before the first update (a long first window)
         self.limb = LimbModel()  # the directions in which the ball shows a sharp rim
+        self.checks = self.stems_in_a_row = 0  # updates checked for a stem, on one in a row
 
 
 class BallTracker:
@@ -799,10 +820,17 @@ class BallTracker:
                 if not (hidden and m - fl.kf.t_us <= CLUTTER_COAST_US):
                     fl.misses += 1
                 if fl.misses >= self.max_misses:
-                    self._end_flight(fl)
+                    self._end_flight(fl, drop=self._lost_young(fl))
             return
         if self._judge(fl, m, fit, (ts, xs, ys)):
             fl.ball_rate = 0.5 * fl.ball_rate + 0.5 * len(ts) / max(s1 - start, 1)
+            if fl.checks < STEM_DROP_WITHIN and not fl.n_final:
+                # a racket's or a bat's head whose handle was hidden when its flight started
+                dt_s = (t - m) * 1e-6
+                fl.checks += 1
+                fl.stems_in_a_row = fl.stems_in_a_row + 1 if _on_a_stem(x - vx * dt_s, y - vy * dt_s, fit) else 0
+                if fl.stems_in_a_row >= STEM_DROP_UPDATES:
+                    self._end_flight(fl, drop=True)
 
     def _judge(self, fl: _Flight, m: int, fit: CircleFit, events) -> bool:
         """Update flight ``fl`` with ``fit`` (a window centred at ``m`` µs, its ``events`` ``(t, x, y)``)
@@ -822,10 +850,15 @@ class BallTracker:
         if fl.outliers >= 2 or fl.misses >= self.max_misses:
             # hit or bounce: the outlying fits are the next flight's first detections
             seeds = fl.outlier_fits[-fl.outliers:] if fl.outliers >= 2 else []
-            self._end_flight(fl)
+            self._end_flight(fl, drop=self._lost_young(fl))
             if seeds:  # (the oldest chain makes room)
                 self._chains = [*self._chains[-(_MAX_CHAINS - 1):], seeds]
         return False
+
+    @staticmethod
+    def _lost_young(fl: _Flight) -> bool:
+        """Whether flight ``fl``, lost now, is no ball: :data:`LOST_YOUNG_UPDATES`."""
+        return not fl.n_final and len(fl.scores) <= LOST_YOUNG_UPDATES
 
     def _update(self, fl: _Flight, m: int, fit: CircleFit) -> None:
         """Update flight ``fl`` with a gated ``fit`` (a window centred at ``m`` µs) and emit its row."""
@@ -1070,8 +1103,11 @@ class BallTracker:
         last = chain[-1][1]
         self._chains = [c for c in self._chains if not _overlap(c[-1][1], (last.cx, last.cy, last.r))]
 
-    def _end_flight(self, fl: _Flight) -> None:
-        self._finalise(fl, ended=True)
+    def _end_flight(self, fl: _Flight, drop: bool = False) -> None:
+        """End flight ``fl``: its rows become final, or with ``drop`` (no ball after all) none of
+        those not final yet do."""
+        if not drop:
+            self._finalise(fl, ended=True)
         self._flights.remove(fl)
         # the search window being joined left this ball's events out: start a new one
         self._search.drop()

@@ -227,6 +227,35 @@ def test_a_bat_swung_past_the_ball_is_no_ball_and_does_not_lose_it(seed):
     assert np.median(err) < 1.0 and err.max() < 3.0
 
 
+# detect_bench's row ``paddle`` to full precision: seed -> (rps, axis, start px, velocity px/s)
+_PADDLE = {6: (28.58628962940386, (0.13241519356417, -0.37465527468539606, -0.9901891716954576),
+               (-5.0, 286.1607563156428), (4865.001578646188, -1154.01890789107)),
+           10: (74.09408408802187, (-1.3831430308174553, 1.7583409833157835, -2.167534910662094),
+                (-5.0, 258.9064283252122), (4977.609050034943, -472.6607081303038))}
+
+
+@pytest.mark.parametrize("seed", [6, 10])
+def test_a_bat_whose_handle_was_hidden_where_its_flight_started_leaves_no_rows(seed):
+    """A table-tennis bat's face (r 40 px, the ball's r 10 px) in view from the first event with its handle
+    hidden behind the player (``detect_bench`` row ``paddle``): on seed 6 it was tracked as a ball for its
+    whole swing (39 rows 8-400 px off the ball, until the recording ended), on seed 10 for 5 rows until it
+    was lost. Now the first is dropped once its handle shows (on a stem in 5 updates in a row among its
+    first 12), the second as lost young (within 8 updates); and the ball is tracked throughout."""
+    rps, axis, start, velocity = _PADDLE[seed]
+    rec = sim.flight("tabletennis", rps=rps, axis=axis, radius_px=10.0, width=640, height=480, duration_s=0.08,
+                     start_px=start, velocity_px_s=velocity, distractors=("paddle", "player"), noise_rate_hz=1.0,
+                     hot_pixels=30, seed=seed)
+    tracker = BallTracker(640, 480)
+    causal = Track.concat([tracker.update(rec.events[i:i + 50_000]) for i in range(0, len(rec.events), 50_000)])
+    tr = tracker.finish()
+    tt = rec.truth_track(visible_only=False)
+    off = lambda rows: np.hypot(rows.cx - np.interp(rows.t_us, tt.t_us, tt.cx),  # noqa: E731
+                                rows.cy - np.interp(rows.t_us, tt.t_us, tt.cy))
+    assert np.count_nonzero(off(causal) > 20.0) >= 5  # the bat was tracked a while (its rows, returned)
+    assert len(tr.flight_ids()) == 1 and off(tr).max() < 3.0  # and is in no final row
+    assert tr.t_us.min() <= 5_000 and tr.t_us.max() >= 75_000
+
+
 def test_a_ball_a_slow_hand_touches_is_not_lost():
     """A small textured ball (r 10 px) flying past a slowly turning arm whose hand touches it from 45 ms
     to the end (``detect_bench`` row ``arm-small``, seed 26 of the extra set 17-30). The hand's thin

@@ -259,7 +259,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
     on_period : callable, optional
         With ``on_part``: called with each flight's number and its image's period
         (:func:`flight_periods`, from the events kept near its ball, not read again) once the
-        flight is done.
+        flight is done; not for a flight the tracker dropped (it has no track rows).
 
     Returns
     -------
@@ -326,7 +326,7 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             _hand_out_parts(fl, options, assigned_before_us, on_part, camera)
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
-                if on_period is not None:
+                if on_period is not None and fl.rows:  # (a flight the tracker dropped has no rows)
                     on_period(fid, _period_of(fl, tracker.flicker_hz))  # (what the tracker filtered)
                 del flights[fid]
 
