@@ -186,7 +186,8 @@ LOST_YOUNG_UPDATES = 8
 updates (its first detections included), none of its rows final, was no ball either: its rows are
 dropped. Where a bat's face or a racket's head started a flight (its handle hidden), it was lost after
 3-8 updates (``detect_bench`` rows ``paddle`` and ``racket``, seeds 1-16); of the balls' flights on
-every row (seeds 1-16), one was: row ``still``, seed 9, a nearly still ball found once (4 % recall)."""
+every row (seeds 1-16), one was: row ``still``, seed 9, a nearly still ball found only once, for 3
+updates (its recall 4 % before, now none)."""
 
 
 INTRUDED_DENSITY = 0.3

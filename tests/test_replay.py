@@ -189,3 +189,23 @@ def test_parts_cut_mid_flight_carry_the_whole_track_s_circle_sigma(tmp_path, mon
         assert [w.sigma_px for w in p.windows] == [w.sigma_px for w in full]
         on_rows += sum(int(w.t_start_us) in set(whole.t_us.tolist()) for w in full)
     assert len(parts) > 100 and on_rows > 50 and np.isfinite([w.sigma_px for p in parts for w in p.windows]).all()
+
+
+def test_a_flight_the_tracker_drops_has_no_period(tmp_path):
+    """A bat's face that started a flight and was lost young (``detect_bench`` row ``paddle``, seed 10:
+    the tracker drops it, see ``tests/test_detect_sim.py``) gets no period in the stored results: a
+    period is stored for each flight of the track, as a batch's ``session_periods`` finds them."""
+    import sim
+    from test_detect_sim import _PADDLE
+
+    rps, axis, start, velocity = _PADDLE[10]
+    rec = sim.flight("tabletennis", rps=rps, axis=axis, radius_px=10.0, width=640, height=480, duration_s=0.08,
+                     start_px=start, velocity_px_s=velocity, distractors=("paddle", "player"), noise_rate_hz=1.0,
+                     hot_pixels=30, seed=10)
+    path = tmp_path / "paddle"
+    with create_session(path, width=640, height=480) as w:
+        w.append_events(rec.events)
+    periods = []
+    track = track_session(path, progress=False, on_part=lambda part: None,
+                          on_period=lambda flight, period: periods.append(flight))
+    assert track.flight_ids().tolist() == [1] and periods == [1]  # flight 0 (the bat's) dropped
