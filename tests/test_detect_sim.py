@@ -234,6 +234,15 @@ _PADDLE = {6: (28.58628962940386, (0.13241519356417, -0.37465527468539606, -0.99
                 (-5.0, 258.9064283252122), (4977.609050034943, -472.6607081303038))}
 
 
+def paddle_flight(seed: int):
+    """``detect_bench``'s row ``paddle`` for ``seed`` (6 or 10): a table-tennis ball past a bat, with a
+    walking player, 640x480, 80 ms."""
+    rps, axis, start, velocity = _PADDLE[seed]
+    return sim.flight("tabletennis", rps=rps, axis=axis, radius_px=10.0, width=640, height=480, duration_s=0.08,
+                      start_px=start, velocity_px_s=velocity, distractors=("paddle", "player"), noise_rate_hz=1.0,
+                      hot_pixels=30, seed=seed)
+
+
 @pytest.mark.parametrize("seed", [6, 10])
 def test_a_bat_whose_handle_was_hidden_where_its_flight_started_leaves_no_rows(seed):
     """A table-tennis bat's face (r 40 px, the ball's r 10 px) in view from the first event with its handle
@@ -241,10 +250,7 @@ def test_a_bat_whose_handle_was_hidden_where_its_flight_started_leaves_no_rows(s
     whole swing (39 rows 8-400 px off the ball, until the recording ended), on seed 10 for 5 rows until it
     was lost. Now the first is dropped once its handle shows (on a stem in 5 updates in a row among its
     first 12), the second as lost young (within 8 updates); and the ball is tracked throughout."""
-    rps, axis, start, velocity = _PADDLE[seed]
-    rec = sim.flight("tabletennis", rps=rps, axis=axis, radius_px=10.0, width=640, height=480, duration_s=0.08,
-                     start_px=start, velocity_px_s=velocity, distractors=("paddle", "player"), noise_rate_hz=1.0,
-                     hot_pixels=30, seed=seed)
+    rec = paddle_flight(seed)
     tracker = BallTracker(640, 480)
     causal = Track.concat([tracker.update(rec.events[i:i + 50_000]) for i in range(0, len(rec.events), 50_000)])
     tr = tracker.finish()

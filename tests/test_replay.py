@@ -195,13 +195,9 @@ def test_a_flight_the_tracker_drops_has_no_period(tmp_path):
     """A bat's face that started a flight and was lost young (``detect_bench`` row ``paddle``, seed 10:
     the tracker drops it, see ``tests/test_detect_sim.py``) gets no period in the stored results: a
     period is stored for each flight of the track, as a batch's ``session_periods`` finds them."""
-    import sim
-    from test_detect_sim import _PADDLE
+    from test_detect_sim import paddle_flight
 
-    rps, axis, start, velocity = _PADDLE[10]
-    rec = sim.flight("tabletennis", rps=rps, axis=axis, radius_px=10.0, width=640, height=480, duration_s=0.08,
-                     start_px=start, velocity_px_s=velocity, distractors=("paddle", "player"), noise_rate_hz=1.0,
-                     hot_pixels=30, seed=10)
+    rec = paddle_flight(10)
     path = tmp_path / "paddle"
     with create_session(path, width=640, height=480) as w:
         w.append_events(rec.events)
