@@ -177,10 +177,10 @@ def period_flight(case) -> list[dict]:
     """One simulated flight (``(texture, rps, seed)``: 640x480, 0.4 s on the default arc, radius 20-40 px,
     realistic sensor, a walking player) tracked by :func:`detect.track_ball`, cut into windows as a replay
     cuts them, estimated, and summed up per flight by :func:`capture.results.flight_table` with each
-    flight's image period (:func:`capture.pipeline.replay.flight_periods`): per flight the windows' rate and the
-    period's against the truth."""
+    flight's image period and whole-flight spin (:func:`capture.pipeline.replay.flight_analysis`): per flight
+    the windows' rate, the period's, and the whole flight's spin against the truth."""
     from capture.events import spin_table, time_slice
-    from capture.pipeline.replay import flight_periods
+    from capture.pipeline.replay import flight_analysis
     from capture.results import flight_table
     from detect import spin_windows, track_ball
 
@@ -194,15 +194,22 @@ def period_flight(case) -> list[dict]:
     windows = list(spin_windows(rec.events, track, window_us=2000, step_us=20000, max_window_us=20000,
                                 min_events=1500, max_events=30000))
     estimates = spin.estimate_windows(windows, skip_errors=True)
-    table = flight_table(track, spin_table([e for e in estimates if e is not None]),
-                         periods=flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track))
+    periods, spins = flight_analysis(lambda t0, t1: time_slice(rec.events, t0, t1), track)
+    table = flight_table(track, spin_table([e for e in estimates if e is not None]), periods=periods,
+                         flight_spins=spins)
     out = []
     for i, fl in enumerate(table["flight"]):
+        whole = spins.get(int(fl))
+        whole_errors = errors(whole.axis, whole.omega_rad_s, rec.truth) if whole is not None else (np.nan, np.nan)
         out.append({"case": [texture, rps, seed], "flight": int(fl), "ms": float(table["duration_ms"][i]),
                     "n_windows": int(table["n_windows"][i]), "n_trusted": int(table["n_trusted"][i]),
                     "rpm": float(table["rpm"][i]), "rpm_sigma": float(table["rpm_sigma"][i]),
                     "period_rpm": float(table["period_rpm"][i]),
-                    "period_rpm_sigma": float(table["period_rpm_sigma"][i]), "true_rpm": 60.0 * rps})
+                    "period_rpm_sigma": float(table["period_rpm_sigma"][i]), "true_rpm": 60.0 * rps,
+                    "flight_axis_deg": float(whole_errors[0]), "flight_rps_pct": float(whole_errors[1]),
+                    "flight_ratio": float(whole.ratio) if whole is not None else np.nan,
+                    "flight_trusted": bool(whole is not None and whole.trusted),
+                    "spin_from": str(table["spin_from"][i])})
     return out
 
 
@@ -212,28 +219,44 @@ def bench_flights(seeds, jobs: int) -> list[dict]:
     and the wrong ones."""
     from multiprocessing import Pool
 
+    from spin.flight import AXIS_SIGMA_DEG
+
     cases = [(tex, rps, seed) for tex in FLIGHT_TEXTURES for rps in FLIGHT_RPS for seed in seeds]
     with Pool(jobs, initializer=_init_worker) as pool:
         recs = [r for part in pool.map(period_flight, cases, chunksize=1) for r in part]
     recs = [r for r in recs if r["ms"] >= 100]  # (the tracker's short stray flights: no spin expected)
     print(f"\nflights of 0.4 s (seeds {seeds}): {len(recs)} flights of at least 100 ms")
     print(f"  {'':12s} {'flights':>7s} {'windows: rate':>14s} {'right':>6s} {'period: rate':>13s} {'right':>6s} "
-          f"{'in 2 sigma':>10s} {'either':>7s}")
+          f"{'in 2 sigma':>10s} {'either':>7s} {'whole: spin':>12s} {'right':>6s} {'trusted':>8s} {'right':>6s} "
+          f"{'axis 2 sigma':>12s} {'spin':>5s}")
 
     def line(name, q):
-        win = [r for r in q if np.isfinite(r["rpm"])]
+        win = [r for r in q if r["spin_from"] == "windows"]
         per = [r for r in q if np.isfinite(r["period_rpm"])]
         win_ok = sum(abs(r["rpm"] / r["true_rpm"] - 1) < 0.05 for r in win)
         per_ok = sum(abs(r["period_rpm"] / r["true_rpm"] - 1) < 0.05 for r in per)
         cover = sum(abs(r["period_rpm"] - r["true_rpm"]) <= 2 * r["period_rpm_sigma"] for r in per)
-        either = sum(np.isfinite(r["rpm"]) or np.isfinite(r["period_rpm"]) for r in q)
-        print(f"  {name:12s} {len(q):7d} {len(win):14d} {win_ok:6d} {len(per):13d} {per_ok:6d} {cover:10d} {either:7d}")
+        either = sum(r["spin_from"] == "windows" or np.isfinite(r["period_rpm"]) for r in q)
+        whole = [r for r in q if np.isfinite(r["flight_axis_deg"])]
+        right = [r for r in whole if r["flight_axis_deg"] < 5 and r["flight_rps_pct"] < 5]
+        trusted = [r for r in whole if r["flight_trusted"]]
+        trusted_right = [r for r in trusted if r in right]
+        axis_cover = sum(r["flight_axis_deg"] <= 2 * AXIS_SIGMA_DEG for r in trusted)
+        spin_any = sum(r["spin_from"] != "-" for r in q)
+        print(f"  {name:12s} {len(q):7d} {len(win):14d} {win_ok:6d} {len(per):13d} {per_ok:6d} {cover:10d} {either:7d} "
+              f"{len(whole):12d} {len(right):6d} {len(trusted):8d} {len(trusted_right):6d} {axis_cover:12d} {spin_any:5d}")
 
     for tex in FLIGHT_TEXTURES:
         line(tex, [r for r in recs if r["case"][0] == tex])
     for rps in FLIGHT_RPS:
         line(f"{rps} rps", [r for r in recs if r["case"][1] == rps])
     line("all", recs)
+    print("  whole: the flight's spin from all its events at the period's speed (spin.flight); right: 5 deg / 5 %;"
+          " spin: flights whose table has a trusted spin (windows', else the whole flight's)")
+    for r in recs:
+        if r["flight_trusted"] and not (r["flight_axis_deg"] < 5 and r["flight_rps_pct"] < 5):
+            print(f"  trusted whole-flight spin wrong: {r['case']} flight {r['flight']}: {r['flight_axis_deg']:.1f} deg, "
+                  f"{r['flight_rps_pct']:.2f} %, ratio {r['flight_ratio']:.2f}")
     for r in recs:
         if np.isfinite(r["period_rpm"]) and abs(r["period_rpm"] / r["true_rpm"] - 1) >= 0.05:
             print(f"  wrong period rate: {r['case']} flight {r['flight']}: {r['period_rpm']:.0f} ± "

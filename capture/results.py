@@ -244,7 +244,8 @@ were 7 % and 10 % off, their period right; the right ones lay within 2.8 % of it
 
 
 def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: float | None = None,
-                 ball: str | None = None, periods: dict | None = None) -> dict[str, np.ndarray]:
+                 ball: str | None = None, periods: dict | None = None,
+                 flight_spins: dict | None = None) -> dict[str, np.ndarray]:
     """One row per flight of ``track`` from the spin windows of ``spin`` (:data:`SPIN_COLUMNS`).
 
     Spin is the median of the flight's trusted windows (confidence >= :data:`TRUST`), its sigma
@@ -259,7 +260,7 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     ``axis_z``, ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``,
     ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``distance_sigma_m``, ``speed_m_s`` (3D),
     ``speed_sigma_m_s``, ``speed_km_h``, ``speed_los_m_s`` (along the line of sight, > 0 away),
-    ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_contradicts``.
+    ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_contradicts``, ``spin_from``.
 
     ``periods`` (``{flight: (period_s, peak, span_s) or None}``, as the analysis stores them:
     :func:`capture.pipeline.replay.flight_periods`) gives each flight's rate from the period of its
@@ -268,6 +269,11 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     :func:`period_rate`). It does not give the axis, and needs at least one window. Where the
     trusted windows' median rate lies more than :data:`PERIOD_CONTRADICTS` from every rate the
     period allows, the flight's spin is not trusted (``period_contradicts``; its spin columns NaN).
+
+    ``flight_spins`` (``{flight: spin.flight.FlightSpin or its stored dict (capture.pipeline.replay.spin_attrs)
+    or None}``) gives a flight's spin from all its events at the period's speed: where its windows give no
+    trusted spin, a trusted whole-flight spin fills the spin columns (its rate, axis and their sigmas).
+    ``spin_from`` says where they come from: ``"windows"``, ``"flight"`` or ``"-"``.
     """
     win = window_table(track, spin)
     rows = []
@@ -297,7 +303,17 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
             found[0], found[2], float(np.median(win["rps"][mine])) if contradicted or not ok.any() else trusted_rps)
         if by_period is not None:
             row.update(period_rpm=60.0 * by_period[0], period_rpm_sigma=60.0 * by_period[0] * by_period[1] / 100.0)
-        if ok.any() and not contradicted:
+        whole = _trusted_flight_spin((flight_spins or {}).get(int(fl)))
+        row["spin_from"] = "windows" if ok.any() and not contradicted else "flight" if whole else "-"
+        if row["spin_from"] == "flight":
+            axis, rate = whole
+            top, side, gyro = spin_components(axis * rate["rps"], (vx, vy))
+            row.update(rps=rate["rps"], rpm=60.0 * rate["rps"], rpm_sigma=60.0 * rate["rps"] * rate["rps_sigma_pct"] / 100.0,
+                       axis_x=float(axis[0]), axis_y=float(axis[1]), axis_z=float(axis[2]),
+                       axis_sigma_deg=rate["axis_sigma_deg"], topspin_rpm=60.0 * top, sidespin_rpm=60.0 * side,
+                       gyro_rpm=60.0 * gyro, efficiency=float(np.hypot(top, side) / rate["rps"]),
+                       tilt=tilt_clock(top, side))
+        if row["spin_from"] == "windows":
             rps = win["rps"][ok]
             axes = np.column_stack([win["axis_x"][ok], win["axis_y"][ok], win["axis_z"][ok]])
             mean_axis = axes.mean(axis=0)
@@ -325,8 +341,22 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
              "rpm", "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm",
              "sidespin_rpm", "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m",
              "distance_sigma_m", "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s",
-             "period_rpm", "period_rpm_sigma", "period_contradicts"]
-    return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball") else None) for k in names}
+             "period_rpm", "period_rpm_sigma", "period_contradicts", "spin_from"]
+    return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball", "spin_from") else None)
+            for k in names}
+
+
+def _trusted_flight_spin(found) -> tuple[np.ndarray, dict] | None:
+    """``(axis (3,), {rps, rps_sigma_pct, axis_sigma_deg})`` of a trusted whole-flight spin (a
+    ``spin.flight.FlightSpin`` or its stored dict), or None."""
+    if found is None:
+        return None
+    get = found.get if isinstance(found, dict) else lambda k: getattr(found, k)
+    if not get("trusted"):
+        return None
+    return (np.asarray(get("axis"), np.float64),
+            {"rps": float(get("omega_rad_s")) / (2.0 * np.pi), "rps_sigma_pct": float(get("rps_sigma_pct")),
+             "axis_sigma_deg": float(get("axis_sigma_deg"))})
 
 
 def format_flight_table(table: dict) -> str:
@@ -344,7 +374,8 @@ def format_flight_table(table: dict) -> str:
             + (f" {'period rpm':>13}" if period else ""))
     lines = [head]
     for i in range(n):
-        trusted = f"{table['n_trusted'][i]}/{table['n_windows'][i]}"
+        whole = table.get("spin_from", ["-"] * n)[i] == "flight"
+        trusted = f"{'*' if whole else ''}{table['n_trusted'][i]}/{table['n_windows'][i]}"
         if np.isfinite(table["rpm"][i]):
             # whole rpm as integers: a float rounding to zero would print "-0"
             topspin, sidespin, gyro = (round(float(table[k][i])) for k in ("topspin_rpm", "sidespin_rpm", "gyro_rpm"))
@@ -367,8 +398,11 @@ def format_flight_table(table: dict) -> str:
         lines.append(line)
     ok = int(np.isfinite(np.asarray(table["rpm"], float)).sum())
     n_period = int(np.isfinite(np.asarray(table.get("period_rpm", []), float)).sum())
+    n_whole = sum(f == "flight" for f in table.get("spin_from", ()))
     lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin"
-                 + (f", {n_period} with a rate from the image's period (no axis)" if period else "")
+                 + (f" ({n_whole} marked *: from all the flight's events at the period's speed, no window trusted)"
+                    if n_whole else "")
+                 + (f", {n_period} with a rate from the image's period" if period else "")
                  + " (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
                  "tilt seen from behind, 12:00 backspin" + ("; m: distance, km/h: 3D speed ± 1 sigma" if speed else "")
                  + ("; period rpm: how often the ball's image repeats, ± 1 sigma" if period else "") + ")")
@@ -452,6 +486,7 @@ def session_results(session, *, ball_diameter_m: float | None = None,
         ball_type, ball_diameter_m = stored_ball(s)
     camera = event_camera(s) if ball_diameter_m else None
     periods = {int(k): v for k, v in (s.attrs.get("flight_periods") or {}).items()}
+    spins = {int(k): v for k, v in (s.attrs.get("flight_spins") or {}).items()}
     flights = flight_table(track, spin_columns, camera=camera, ball_diameter_m=ball_diameter_m, ball=ball_type,
-                           periods=periods)
+                           periods=periods, flight_spins=spins)
     return flights, window_table(track, spin_columns)

@@ -277,6 +277,52 @@ def on_track_disc(t_us, x, y, t_rows, cx_rows, cy_rows, r_rows, inner):
     return idx[:k], out[0, :k], out[1, :k], out[2, :k] / inner
 
 
+@numba.njit(nogil=True, cache=True, boundscheck=False)
+def sphere_contrast(u, v, w, cos_a, sin_a, p, axes, n_cells):
+    """Sharpness of a ball's surface map for each of K spin axes (:mod:`spin.flight`).
+
+    Each point ``(u, v, w)`` (N,) of the unit sphere (camera frame, at its event's time) is turned by
+    its angle about each axis ``axes[k]`` (K, 3) (``cos_a``, ``sin_a`` (N,), Rodrigues' rotation),
+    counted in a cube of ``n_cells``^3 cells over [-1, 1]^3 (the sphere's surface crosses about
+    ``3 n_cells^2`` of them), polarities ``p`` (N,) 0/1 apart, and the map scored by the sum of the
+    squared differences of the two polarities' counts per cell, per point (float64 (K,)): about 1 where
+    the events' places on the ball are unrelated, however much of the ball the axis lets them cover,
+    and more where the texture's edges pile up.
+    """
+    n = len(u)
+    out = np.zeros(len(axes))
+    count = np.zeros((2, n_cells * n_cells * n_cells), np.int32)
+    touched = np.empty(n, np.int64)
+    half = 0.5 * n_cells
+    for k in range(len(axes)):
+        nx, ny, nz = axes[k, 0], axes[k, 1], axes[k, 2]
+        ss = 0.0
+        m = 0
+        for i in range(n):
+            px, py, pz = u[i], v[i], w[i]
+            c, s = cos_a[i], sin_a[i]
+            d = (1.0 - c) * (nx * px + ny * py + nz * pz)
+            qx = px * c + s * (ny * pz - nz * py) + d * nx
+            qy = py * c + s * (nz * px - nx * pz) + d * ny
+            qz = pz * c + s * (nx * py - ny * px) + d * nz
+            ix = min(max(int((qx + 1.0) * half), 0), n_cells - 1)
+            iy = min(max(int((qy + 1.0) * half), 0), n_cells - 1)
+            iz = min(max(int((qz + 1.0) * half), 0), n_cells - 1)
+            cell = (ix * n_cells + iy) * n_cells + iz
+            a = count[p[i], cell]
+            b = count[1 - p[i], cell]
+            if a == 0 and b == 0:
+                touched[m] = cell
+                m += 1
+            ss += 2.0 * (a - b) + 1.0  # (a + 1 - b)^2 - (a - b)^2
+            count[p[i], cell] = a + 1
+        out[k] = ss / max(n, 1)
+        for j in range(m):
+            count[0, touched[j]] = 0
+            count[1, touched[j]] = 0
+    return out
+
+
 def load() -> None:
     """Load the compiled loops now (from Numba's cache; compiled on first use after an install)."""
     p = np.zeros((3, 1), np.float32)
@@ -293,3 +339,5 @@ def load() -> None:
         events.setflags(write=writable)
         on_track_disc(events["t"], events["x"], events["y"], np.zeros(1, np.int64), np.zeros(1), np.zeros(1),
                       np.ones(1), 1.0)
+    unit = np.ones(1)
+    sphere_contrast(unit, unit, unit, unit, unit, np.zeros(1, np.int8), np.ones((1, 3)), 4)

@@ -194,14 +194,15 @@ def test_parts_cut_mid_flight_carry_the_whole_track_s_circle_sigma(tmp_path, mon
 def test_a_flight_the_tracker_drops_has_no_period(tmp_path):
     """A bat's face that started a flight and was lost young (``detect_bench`` row ``paddle``, seed 10:
     the tracker drops it, see ``tests/test_detect_sim.py``) gets no period in the stored results: a
-    period is stored for each flight of the track, as a batch's ``session_periods`` finds them."""
+    flight's whole-flight work is handed out for each flight of the track, as a batch's
+    ``session_flights`` finds them."""
     from test_detect_sim import paddle_flight
 
     rec = paddle_flight(10)
     path = tmp_path / "paddle"
     with create_session(path, width=640, height=480) as w:
         w.append_events(rec.events)
-    periods = []
+    flights = []
     track = track_session(path, progress=False, on_part=lambda part: None,
-                          on_period=lambda flight, period: periods.append(flight))
-    assert track.flight_ids().tolist() == [1] and periods == [1]  # flight 0 (the bat's) dropped
+                          on_flight=lambda part: flights.append(part.flight))
+    assert track.flight_ids().tolist() == [1] and flights == [1]  # flight 0 (the bat's) dropped

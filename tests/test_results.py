@@ -404,3 +404,31 @@ def test_3d_speed_of_a_simulated_looming_or_receding_flight_through_the_tracker(
     assert np.sign(out["speed_los_m_s"]) == np.sign(depth_m_s)
     assert abs(out["speed_m_s"] - np.linalg.norm(v)) < max(3 * out["speed_sigma_m_s"], 0.02 * np.linalg.norm(v))
     np.testing.assert_allclose(out["velocity_m_s"], v, atol=max(0.4, 3 * out["speed_sigma_m_s"]))
+
+
+def test_the_flight_table_takes_a_trusted_whole_flight_spin_where_no_window_is_trusted():
+    """No window trusted: the whole flight's spin (``spin.flight``) fills the spin columns, marked
+    ``spin_from="flight"`` (and ``*`` in the printed table); as the session stores it too; an untrusted
+    one gives nothing; trusted windows' spin stands over it."""
+    import math
+    from dataclasses import replace
+
+    from spin.flight import FlightSpin
+
+    v = (3000, 0)
+    whole = FlightSpin(axis=np.array([0.0, 0.0, -1.0]), omega_rad_s=2 * math.pi * 40.0, fold=1, ratio=2.0,
+                       excess=30.0, trusted=True, axis_sigma_deg=1.8, rps_sigma_pct=0.2)
+    flagged = _spin((0, 0, -1), 30.0, v, conf=0.2)
+    t = flight_table(_track(v), flagged, flight_spins={0: whole})
+    assert t["spin_from"][0] == "flight" and t["rpm"][0] == pytest.approx(2400.0)
+    assert t["rpm_sigma"][0] == pytest.approx(2400.0 * 0.002) and t["axis_sigma_deg"][0] == 1.8
+    assert t["topspin_rpm"][0] == pytest.approx(2400.0) and t["tilt"][0] == "6:00"
+    assert "*0/8" in format_flight_table(t)
+    stored = {0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": whole.omega_rad_s, "fold": 1, "ratio": 2.0,
+                  "excess": 30.0, "trusted": True, "axis_sigma_deg": 1.8, "rps_sigma_pct": 0.2}}
+    assert flight_table(_track(v), flagged, flight_spins=stored)["rpm"][0] == pytest.approx(2400.0)
+    untrusted = replace(whole, ratio=1.1, trusted=False)
+    t = flight_table(_track(v), flagged, flight_spins={0: untrusted})
+    assert t["spin_from"][0] == "-" and not np.isfinite(t["rpm"][0])
+    t = flight_table(_track(v), _spin((0, 0, -1), 30.0, v), flight_spins={0: whole})
+    assert t["spin_from"][0] == "windows" and t["rpm"][0] == pytest.approx(1800.0)

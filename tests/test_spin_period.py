@@ -210,18 +210,18 @@ def test_a_plain_ball_shows_no_period():
 
 
 def test_a_period_that_is_a_flickering_light_s_is_not_the_ball_s():
-    """The pipeline's flight_periods: a tennis ball at 30 rps repeats every 33.3 ms; under a light
+    """The pipeline's flight_analysis: a tennis ball at 30 rps repeats every 33.3 ms; under a light
     flickering at 30 Hz (or 60, 120 Hz) that period could be the light's, and is dropped."""
     from capture.events import time_slice
-    from capture.pipeline.replay import flight_periods
+    from capture.pipeline.replay import flight_analysis
 
     rec, _, _ = _flight_on_track("tennis", 30.0)
     track = rec.truth_track()
-    found = flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track)
+    found, spins = flight_analysis(lambda t0, t1: time_slice(rec.events, t0, t1), track)
     assert found[0] is not None and found[0][0] * 30.0 == pytest.approx(1.0, abs=0.015)
     for hz in (30.0, 60.0, 120.0):
-        assert flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=hz)[0] is None
-    assert flight_periods(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=100.0)[0] == found[0]
+        assert flight_analysis(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=hz) == ({0: None}, {0: None})
+    assert flight_analysis(lambda t0, t1: time_slice(rec.events, t0, t1), track, flicker_hz=100.0)[0][0] == found[0]
 
 
 

@@ -9,7 +9,9 @@ a batch of sessions can later run on a distributed engine unchanged:
 - :func:`spin_part` — one per part: plain data in, spin columns out; a flight's parts give
   the same windows as the whole flight (:func:`spin_flight`), so splitting only spreads
   the work;
-- :func:`replay` — drives both for one session (spin parts in worker processes while
+- :func:`flight_part` — one per done flight (:class:`FlightPart`, its events on the track's disc):
+  the period of its image and its spin from all its events;
+- :func:`replay` — drives them for one session (spin parts and done flights in worker processes while
   tracking goes on) and writes the results.
 """
 
@@ -30,7 +32,7 @@ from tqdm import tqdm
 import spin
 from calib.intrinsics import Intrinsics
 from calib.store import event_camera
-from capture.events import SPIN_COLUMNS, Track, concat_tables, concatenate, first_at, spin_table
+from capture.events import EVENT_DTYPE, SPIN_COLUMNS, Track, concat_tables, concatenate, first_at, spin_table
 from capture.gopro import read_video
 from capture.pipeline.workers import SharedWork
 from capture.pipeline.ball_view import ball_view
@@ -38,6 +40,7 @@ from capture.session import open_session, software_version, update_session
 from detect import BallTracker, spin_windows
 from detect.flicker import FLICKER_SAMPLE_EVENTS, find_flicker_hz
 from detect.track import events_near
+from spin.flight import FlightSpin, flight_spin
 from spin.period import FLIGHT_MAX_EVENTS, flight_period, on_track_disc
 
 BATCH_EVENTS = 1 << 20
@@ -232,19 +235,17 @@ def iter_session_frames(session, width: int, height: int) -> Iterator[tuple[int,
         yield t_us, img
 
 
-def _period_of(fl: _OpenFlight, flicker_hz: float | None) -> tuple | None:
-    """:func:`flight_periods` of a done flight from the events kept near its ball."""
-    if not fl.seen or not fl.rows:
-        return None
-    seen = concatenate(fl.seen)
+def _flight_part_of(fl: _OpenFlight, flicker_hz: float | None, camera: Intrinsics | None) -> FlightPart:
+    """The :class:`FlightPart` of a done flight (with track rows) from the events kept near its ball."""
+    seen = concatenate(fl.seen) if fl.seen else np.zeros(0, EVENT_DTYPE)
     rows = Track.concat(fl.rows)
-    found = flight_periods(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
-                           flicker_hz=flicker_hz)
-    return next(iter(found.values()), None)
+    parts = flight_parts(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
+                         flicker_hz=flicker_hz, camera=camera)
+    return parts[0]
 
 
 def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
-                  on_part=None, on_period=None) -> Track:
+                  on_part=None, on_flight=None) -> Track:
     """Detect and track the ball over a session, streaming its events in batches.
 
     Parameters
@@ -256,10 +257,10 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
         all their events have been read, while tracking goes on; every window of every
         flight is in exactly one part, in order within a flight.  Parts carry the session's
         event camera (:func:`event_camera`).
-    on_period : callable, optional
-        With ``on_part``: called with each flight's number and its image's period
-        (:func:`flight_periods`, from the events kept near its ball, not read again) once the
-        flight is done; not for a flight the tracker dropped (it has no track rows).
+    on_flight : callable, optional
+        With ``on_part``: called with each flight's :class:`FlightPart` (from the events kept near
+        its ball, not read again) once the flight is done; not for a flight the tracker dropped
+        (it has no track rows).
 
     Returns
     -------
@@ -326,8 +327,8 @@ def track_session(session_path, options: ReplayOptions | None = None, progress: 
             _hand_out_parts(fl, options, assigned_before_us, on_part, camera)
             done = fl.ended and (not len(fl.final) or fl.next_start_us > fl.final.t_us[-1])
             if done and (assigned_before_us is None or fl.causal.t_us[-1] + longest_us <= assigned_before_us):
-                if on_period is not None and fl.rows:  # (a flight the tracker dropped has no rows)
-                    on_period(fid, _period_of(fl, tracker.flicker_hz))  # (what the tracker filtered)
+                if on_flight is not None and fl.rows:  # (a flight the tracker dropped has no rows)
+                    on_flight(_flight_part_of(fl, tracker.flicker_hz, camera))  # (the flicker it filtered)
                 del flights[fid]
 
     bar = tqdm(total=s.n_events, unit="ev", unit_scale=True, desc="tracking", disable=not progress,
@@ -395,8 +396,13 @@ def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
     return spin_table(spin.estimate_windows(part.windows, method=options.method, camera=part.camera))
 
 
-def _spin_unit(args) -> dict[str, np.ndarray]:
-    return spin_part(*args)
+def _replay_unit(args):
+    """A unit of replay's shared work: a :class:`SpinPart`'s spin columns, or a :class:`FlightPart`'s
+    ``(flight, period, FlightSpin)`` (:func:`flight_part`)."""
+    part, options = args
+    if isinstance(part, FlightPart):
+        return (part.flight, *flight_part(part))
+    return spin_part(part, options)
 
 
 WORKERS_MIN_SPAN_S = 1.0
@@ -453,18 +459,40 @@ PERIOD_FLICKER_TOLERANCE = 0.01
 """A period within this share of a flickering light's period (or of 1/4 to 4 times it) is the light's."""
 
 
-def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
-                   flicker_hz: float | None = None) -> dict[int, tuple | None]:
-    """The period over which each flight's ball image repeats (:func:`spin.period.flight_period`,
-    ``(period_s, peak, span_s)`` or None), from the events and the flights' track rows.
+@dataclass(frozen=True)
+class FlightPart:
+    """A done flight's ball events as plain data: the unit of its whole-flight work (:func:`flight_part`).
+
+    Attributes
+    ----------
+    flight : int
+        Flight number.
+    columns : tuple of ndarray (N,)
+        ``t_us, x_px, y_px, p, cx_px, cy_px, r_px``: its events within ``spin.period.FLIGHT_INNER`` of
+        the track's circle at their own times (thinned evenly to about ``spin.period.FLIGHT_MAX_EVENTS``)
+        and those circles (px).
+    flicker_hz : float or None
+        The lights' flicker the tracker filtered (Hz): a period that is its is not the ball's.
+    ray : ndarray (3,) or None
+        The line of sight to the ball's middle position (camera frame) where the camera is known.
+    """
+
+    flight: int
+    columns: tuple
+    flicker_hz: float | None = None
+    ray: np.ndarray | None = None
+
+
+def flight_parts(events_between, track: Track, *, flicker_hz: float | None = None,
+                 camera: Intrinsics | None = None) -> list[FlightPart]:
+    """One :class:`FlightPart` per flight of ``track``, from the events.
 
     ``events_between(t0_us, t1_us)`` gives the events with ``t0_us <= t < t1_us`` (EVENT_DTYPE; e.g. a
     session's ``events``). A flight's events are read in pieces of :data:`PERIOD_CHUNK_US`, placed on
     the track interpolated at each one's time, those off the ball's inner disc dropped
     (:func:`spin.period.on_track_disc`), and what is left thinned evenly so that the flight keeps
-    about ``spin.period.FLIGHT_MAX_EVENTS``. A period that is a flickering light's (``flicker_hz``, Hz;
-    within :data:`PERIOD_FLICKER_TOLERANCE` of 1/4 to 4 times its period) is not the ball's: None."""
-    out = {}
+    about ``spin.period.FLIGHT_MAX_EVENTS``."""
+    parts = []
     for fl in track.flight_ids():
         sel = track.flight == fl
         t_rows, cx_rows, cy_rows, r_rows = track.t_us[sel], track.cx[sel], track.cy[sel], track.r[sel]
@@ -477,37 +505,76 @@ def flight_periods(events_between, track: Track, *, max_rps: float = 1200.0,
             step = max(-(-len(on) // share), 1)
             on, cx, cy, r = on[::step], cx[::step], cy[::step], r[::step]
             pieces.append((ev["t"][on], ev["x"][on], ev["y"][on], ev["p"][on], cx, cy, r))
-        columns = [np.concatenate(c) for c in zip(*pieces)]
-        found = flight_period(*columns, max_rps=max_rps) if len(columns[0]) > 1 else None
-        if found is not None and flicker_hz:
-            ratio = found[0] * flicker_hz
-            if any(abs(ratio / q - 1.0) < PERIOD_FLICKER_TOLERANCE for q in (0.25, 1 / 3, 0.5, 1.0, 2.0, 3.0, 4.0)):
-                found = None
-        out[int(fl)] = found
-    return out
+        ray = None
+        if camera is not None:
+            mid = len(t_rows) // 2
+            ray = camera.rays([[cx_rows[mid], cy_rows[mid]]])[0]
+        parts.append(FlightPart(int(fl), tuple(np.concatenate(c) for c in zip(*pieces)), flicker_hz, ray))
+    return parts
 
 
-def session_periods(session_path, track: Track, options: ReplayOptions) -> dict[int, tuple | None]:
-    """:func:`flight_periods` of a stored session, with the flicker its tracker filtered
-    (:func:`resolved_options`)."""
+def flight_part(part: FlightPart, *, max_rps: float = 1200.0) -> tuple[tuple | None, FlightSpin | None]:
+    """A done flight's image period (:func:`spin.period.flight_period`: ``(period_s, peak, span_s)``) and
+    its spin from all its events (:func:`spin.flight.flight_spin`), each None where not found.
+
+    A period that is a flickering light's (``part.flicker_hz``; within :data:`PERIOD_FLICKER_TOLERANCE` of
+    1/4 to 4 times its period) is not the ball's: None (and no spin)."""
+    from capture.results import PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT
+
+    columns = part.columns
+    found = flight_period(*columns, max_rps=max_rps) if len(columns[0]) > 1 else None
+    if found is not None and part.flicker_hz:
+        ratio = found[0] * part.flicker_hz
+        if any(abs(ratio / q - 1.0) < PERIOD_FLICKER_TOLERANCE for q in (0.25, 1 / 3, 0.5, 1.0, 2.0, 3.0, 4.0)):
+            found = None
+    if found is None:
+        return None, None
+    sigma_pct = max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * found[0] / found[2])
+    return found, flight_spin(*columns, found[0], period_sigma_pct=sigma_pct, ray=part.ray)
+
+
+def flight_analysis(events_between, track: Track, *, max_rps: float = 1200.0, flicker_hz: float | None = None,
+                    camera: Intrinsics | None = None) -> tuple[dict, dict]:
+    """Each flight's image period and whole-flight spin (:func:`flight_part` of :func:`flight_parts`):
+    ``({flight: (period_s, peak, span_s) or None}, {flight: FlightSpin or None})``."""
+    periods, spins = {}, {}
+    for part in flight_parts(events_between, track, flicker_hz=flicker_hz, camera=camera):
+        periods[part.flight], spins[part.flight] = flight_part(part, max_rps=max_rps)
+    return periods, spins
+
+
+def session_flights(session_path, track: Track, options: ReplayOptions) -> tuple[dict, dict]:
+    """:func:`flight_analysis` of a stored session, with the flicker its tracker filtered
+    (:func:`resolved_options`) and its event camera."""
     flicker = resolved_options(session_path, options).tracker.get("flicker_hz")
-    return flight_periods(open_session(session_path, cache_chunks=2).events, track,
-                          flicker_hz=float(flicker) if flicker else None)
+    s = open_session(session_path, cache_chunks=2)
+    return flight_analysis(s.events, track, flicker_hz=float(flicker) if flicker else None, camera=event_camera(s))
+
+
+def spin_attrs(spins: dict) -> dict:
+    """``{flight: FlightSpin or None}`` as a session stores it (attrs ``flight_spins``): ``{"flight": {axis,
+    omega_rad_s, fold, ratio, excess, trusted, axis_sigma_deg, rps_sigma_pct} or None}``."""
+    return {str(k): None if v is None else {**{f: (bool(x) if f == "trusted" else int(x) if f == "fold" else float(x))
+                                               for f, x in asdict(v).items() if f != "axis"},
+                                            "axis": [float(a) for a in v.axis]}
+            for k, v in spins.items()}
 
 
 def store_results(session_path, track: Track, spin_columns: dict, options: ReplayOptions,
-                  periods: dict | None = None) -> None:
-    """Replace a session's track and spin tables with these, and its flights' image periods
-    (``periods``, default :func:`session_periods`; attrs ``flight_periods``: ``{flight: [period_s,
-    peak, span_s] or None}``), and stamp them (:func:`analysis_stamp`). The old stamp and periods go
-    first: a write cut short leaves a session that no batch skips, and no periods of other flights."""
-    if periods is None:
-        periods = session_periods(session_path, track, options)
+                  flights: tuple[dict, dict] | None = None) -> None:
+    """Replace a session's track and spin tables with these, and its flights' image periods and
+    whole-flight spins (``flights``: ``(periods, spins)`` as :func:`flight_analysis` gives them, default
+    :func:`session_flights`; attrs ``flight_periods``: ``{flight: [period_s, peak, span_s] or None}``,
+    ``flight_spins``: :func:`spin_attrs`), and stamp them (:func:`analysis_stamp`). The old stamp,
+    periods and spins go first: a write cut short leaves a session that no batch skips, and nothing of
+    other flights."""
+    periods, spins = session_flights(session_path, track, options) if flights is None else flights
     writer = update_session(session_path)
-    writer.set_attrs(analysis=None, flight_periods=None)
+    writer.set_attrs(analysis=None, flight_periods=None, flight_spins=None)
     writer.write_track(track.columns())
     writer.write_spin(spin_columns)
-    writer.set_attrs(flight_periods={str(k): None if v is None else [float(x) for x in v] for k, v in periods.items()})
+    writer.set_attrs(flight_periods={str(k): None if v is None else [float(x) for x in v] for k, v in periods.items()},
+                     flight_spins=spin_attrs(spins))
     writer.close(analysis=analysis_stamp(options))
 
 
@@ -538,13 +605,16 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
     # once tracking is done, this process joins in
     workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
-    with SharedWork(_spin_unit, workers, preload=WORKER_PRELOAD,
+    # (and each done flight's whole-flight work)
+    with SharedWork(_replay_unit, workers, preload=WORKER_PRELOAD,
                     initializer=one_thread_per_worker) as work:
-        periods = {}
-        track = track_session(session_path, options, progress, on_part=lambda part: work.add((part, options)),
-                              on_period=periods.__setitem__)
-        spin_columns = concat_tables(work.results(progress, desc="spin"), SPIN_COLUMNS, sort_by="t_start_us")
-    store_results(session_path, track, spin_columns, options, periods)
+        add = lambda part: work.add((part, options))  # noqa: E731
+        track = track_session(session_path, options, progress, on_part=add, on_flight=add)
+        results = work.results(progress, desc="spin")
+    spin_columns = concat_tables([r for r in results if isinstance(r, dict)], SPIN_COLUMNS, sort_by="t_start_us")
+    done = [r for r in results if isinstance(r, tuple)]
+    store_results(session_path, track, spin_columns, options,
+                  ({f: period for f, period, _ in done}, {f: found for f, _, found in done}))
     if rrd_path is not None:
         from capture.review import write_rrd  # Rerun's SDK takes 0.3 s to import: only when a review is asked for
 
