@@ -52,10 +52,7 @@ def test_demo_records_analyses_and_reviews(demo):
     # the flight's image repeats once a turn: stored with the analysis, and the printed table's rate
     period_s, peak, span_s = s.attrs["flight_periods"]["0"]
     assert period_s * truth["truth_rps"] == pytest.approx(1.0, abs=0.01) and span_s > 0.2
-    # and the spin from all the flight's events at that speed
-    whole = s.attrs["flight_spins"]["0"]
-    assert whole["trusted"] and whole["omega_rad_s"] / (2 * np.pi) == pytest.approx(truth["truth_rps"], rel=0.01)
-    assert np.degrees(np.arccos(np.clip(np.dot(whole["axis"], truth["truth_axis"]), -1, 1))) < 5.0
+    assert s.attrs["flight_spins"] == {}  # its windows give its spin: no whole-flight spin is needed
     header, row = printed.splitlines()[[i for i, line in enumerate(printed.splitlines()) if "period rpm" in line][0]:][:2]
     assert float(row.split()[-3]) == pytest.approx(60 * truth["truth_rps"], rel=0.01)
     # the Rerun recording reads back with the ball and spin entities

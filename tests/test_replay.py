@@ -5,7 +5,7 @@ import pytest
 
 import capture.pipeline.replay as replay_mod
 from capture.pipeline.replay import ReplayOptions, track_session
-from capture.session import Session, create_session
+from capture.session import Session, create_session, open_session
 from detect import track_ball
 from detect.track import spin_windows, window_starts_us
 from sim.esim import merge
@@ -206,3 +206,26 @@ def test_a_flight_the_tracker_drops_has_no_period(tmp_path):
     track = track_session(path, progress=False, on_part=lambda part: None,
                           on_flight=lambda part: flights.append(part.flight))
     assert track.flight_ids().tolist() == [1] and flights == [1]  # flight 0 (the bat's) dropped
+
+
+def test_a_sparse_ball_whose_windows_give_no_spin_gets_its_spin_from_the_whole_flight(tmp_path):
+    """A tennis ball (two seams) at 30 rps through nine turns: no window of its flight is trusted, so replay
+    finds its spin from all its events at its period's speed (``spin.flight``), stores it, and the flight
+    table takes it (``spin_from == "flight"``): the axis within 5 deg, the rate within 1 %. (The demo's
+    volleyball, whose windows give its spin, gets none: ``tests/test_demo.py``.)"""
+    import sim
+    from capture.pipeline.replay import replay
+    from capture.results import session_results
+
+    rec = sim.flight("tennis", rps=30.0, axis=(0.5, -0.6, 0.62), radius_px=18.0, width=320, height=240,
+                     duration_s=0.3, distractors=(), sensor="realistic", seed=4)
+    path = tmp_path / "tennis"
+    with create_session(path, width=320, height=240) as w:
+        w.append_events(rec.events)
+    result = replay(path, progress=False)
+    assert len(result.spin["confidence"]) > 5 and (result.spin["confidence"] < 0.5).all()
+    whole = open_session(path).attrs["flight_spins"]["0"]
+    assert whole["trusted"] and whole["omega_rad_s"] / (2 * np.pi) == pytest.approx(30.0, rel=0.01)
+    assert np.degrees(np.arccos(np.clip(np.dot(whole["axis"], rec.truth["axis"]), -1, 1))) < 5.0
+    flights, _ = session_results(path)
+    assert flights["spin_from"].tolist() == ["flight"] and flights["rpm"][0] == pytest.approx(1800.0, rel=0.01)

@@ -10,7 +10,9 @@ a batch of sessions can later run on a distributed engine unchanged:
   the same windows as the whole flight (:func:`spin_flight`), so splitting only spreads
   the work;
 - :func:`flight_part` — one per done flight (:class:`FlightPart`, its events on the track's disc):
-  the period of its image and its spin from all its events;
+  the period of its image;
+- :func:`whole_flight_spin` — one per flight whose windows give no spin (:class:`WholeFlightPart`):
+  its spin from all its events at its period's speed;
 - :func:`replay` — drives them for one session (spin parts and done flights in worker processes while
   tracking goes on) and writes the results.
 """
@@ -239,9 +241,8 @@ def _flight_part_of(fl: _OpenFlight, flicker_hz: float | None, camera: Intrinsic
     """The :class:`FlightPart` of a done flight (with track rows) from the events kept near its ball."""
     seen = concatenate(fl.seen) if fl.seen else np.zeros(0, EVENT_DTYPE)
     rows = Track.concat(fl.rows)
-    parts = flight_parts(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
-                         flicker_hz=flicker_hz, camera=camera)
-    return parts[0]
+    return next(flight_parts(lambda t0, t1: seen[first_at(seen["t"], t0):first_at(seen["t"], t1)], rows,
+                             flicker_hz=flicker_hz, camera=camera))
 
 
 def track_session(session_path, options: ReplayOptions | None = None, progress: bool = True,
@@ -397,11 +398,14 @@ def spin_part(part: SpinPart, options: ReplayOptions) -> dict[str, np.ndarray]:
 
 
 def _replay_unit(args):
-    """A unit of replay's shared work: a :class:`SpinPart`'s spin columns, or a :class:`FlightPart`'s
-    ``(flight, period, FlightSpin)`` (:func:`flight_part`)."""
+    """A unit of replay's shared work: a :class:`SpinPart`'s spin columns, a :class:`FlightPart`'s
+    ``("period", flight, period)`` (:func:`flight_part`) or a :class:`WholeFlightPart`'s ``("spin", flight,
+    FlightSpin)`` (:func:`whole_flight_spin`)."""
     part, options = args
     if isinstance(part, FlightPart):
-        return (part.flight, *flight_part(part))
+        return "period", part.flight, flight_part(part)
+    if isinstance(part, WholeFlightPart):
+        return "spin", part.part.flight, whole_flight_spin(part)
     return spin_part(part, options)
 
 
@@ -461,7 +465,8 @@ PERIOD_FLICKER_TOLERANCE = 0.01
 
 @dataclass(frozen=True)
 class FlightPart:
-    """A done flight's ball events as plain data: the unit of its whole-flight work (:func:`flight_part`).
+    """A done flight's ball events as plain data: the unit of its period (:func:`flight_part`), and with it
+    of its whole-flight spin (:class:`WholeFlightPart`).
 
     Attributes
     ----------
@@ -484,15 +489,14 @@ class FlightPart:
 
 
 def flight_parts(events_between, track: Track, *, flicker_hz: float | None = None,
-                 camera: Intrinsics | None = None) -> list[FlightPart]:
-    """One :class:`FlightPart` per flight of ``track``, from the events.
+                 camera: Intrinsics | None = None) -> Iterator[FlightPart]:
+    """One :class:`FlightPart` per flight of ``track``, from the events, lazily (one flight's events at a time).
 
     ``events_between(t0_us, t1_us)`` gives the events with ``t0_us <= t < t1_us`` (EVENT_DTYPE; e.g. a
     session's ``events``). A flight's events are read in pieces of :data:`PERIOD_CHUNK_US`, placed on
     the track interpolated at each one's time, those off the ball's inner disc dropped
     (:func:`spin.period.on_track_disc`), and what is left thinned evenly so that the flight keeps
     about ``spin.period.FLIGHT_MAX_EVENTS``."""
-    parts = []
     for fl in track.flight_ids():
         sel = track.flight == fl
         t_rows, cx_rows, cy_rows, r_rows = track.t_us[sel], track.cx[sel], track.cy[sel], track.r[sel]
@@ -509,46 +513,76 @@ def flight_parts(events_between, track: Track, *, flicker_hz: float | None = Non
         if camera is not None:
             mid = len(t_rows) // 2
             ray = camera.rays([[cx_rows[mid], cy_rows[mid]]])[0]
-        parts.append(FlightPart(int(fl), tuple(np.concatenate(c) for c in zip(*pieces)), flicker_hz, ray))
-    return parts
+        yield FlightPart(int(fl), tuple(np.concatenate(c) for c in zip(*pieces)), flicker_hz, ray)
 
 
-def flight_part(part: FlightPart, *, max_rps: float = 1200.0) -> tuple[tuple | None, FlightSpin | None]:
-    """A done flight's image period (:func:`spin.period.flight_period`: ``(period_s, peak, span_s)``) and
-    its spin from all its events (:func:`spin.flight.flight_spin`), each None where not found.
+def flight_part(part: FlightPart, *, max_rps: float = 1200.0) -> tuple | None:
+    """A done flight's image period (:func:`spin.period.flight_period`: ``(period_s, peak, span_s)``), or None.
 
     A period that is a flickering light's (``part.flicker_hz``; within :data:`PERIOD_FLICKER_TOLERANCE` of
-    1/4 to 4 times its period) is not the ball's: None (and no spin)."""
-    from capture.results import PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT
-
+    1/4 to 4 times its period) is not the ball's: None."""
     columns = part.columns
     found = flight_period(*columns, max_rps=max_rps) if len(columns[0]) > 1 else None
     if found is not None and part.flicker_hz:
         ratio = found[0] * part.flicker_hz
         if any(abs(ratio / q - 1.0) < PERIOD_FLICKER_TOLERANCE for q in (0.25, 1 / 3, 0.5, 1.0, 2.0, 3.0, 4.0)):
             found = None
-    if found is None:
-        return None, None
-    sigma_pct = max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * found[0] / found[2])
-    return found, flight_spin(*columns, found[0], period_sigma_pct=sigma_pct, ray=part.ray)
+    return found
+
+
+@dataclass(frozen=True)
+class WholeFlightPart:
+    """A flight's events and its image period: the unit of its whole-flight spin (:func:`whole_flight_spin`)."""
+
+    part: FlightPart
+    period: tuple
+
+
+def whole_flight_spin(work: WholeFlightPart) -> FlightSpin | None:
+    """The flight's spin from all its events at its period's speed (:func:`spin.flight.flight_spin`), the
+    rate's sigma that of the period (:func:`capture.results.period_rate`)."""
+    from capture.results import PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT
+
+    period_s, _, span_s = work.period
+    sigma_pct = max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
+    return flight_spin(*work.part.columns, period_s, period_sigma_pct=sigma_pct, ray=work.part.ray)
+
+
+def windowless_flights(track: Track, spin_columns: dict, periods: dict) -> list[int]:
+    """The flights with a period whose spin the flight table does not take from their windows (no window
+    trusted, or the trusted ones contradicted by the period: :func:`capture.results.flight_table`): those
+    a whole-flight spin serves."""
+    from capture.results import flight_table
+
+    table = flight_table(track, spin_columns, periods=periods)
+    return [int(f) for f, src in zip(table["flight"], table["spin_from"])
+            if src != "windows" and periods.get(int(f)) is not None]
 
 
 def flight_analysis(events_between, track: Track, *, max_rps: float = 1200.0, flicker_hz: float | None = None,
-                    camera: Intrinsics | None = None) -> tuple[dict, dict]:
-    """Each flight's image period and whole-flight spin (:func:`flight_part` of :func:`flight_parts`):
-    ``({flight: (period_s, peak, span_s) or None}, {flight: FlightSpin or None})``."""
-    periods, spins = {}, {}
-    for part in flight_parts(events_between, track, flicker_hz=flicker_hz, camera=camera):
-        periods[part.flight], spins[part.flight] = flight_part(part, max_rps=max_rps)
+                    camera: Intrinsics | None = None, spin_columns: dict | None = None) -> tuple[dict, dict]:
+    """Each flight's image period (:func:`flight_part`) and whole-flight spin (:func:`whole_flight_spin`):
+    ``({flight: (period_s, peak, span_s) or None}, {flight: FlightSpin})``. The spin is found for every
+    flight with a period, or, given the windows' ``spin_columns``, for the :func:`windowless_flights` only
+    (their events are read again)."""
+    periods = {part.flight: flight_part(part, max_rps=max_rps)
+               for part in flight_parts(events_between, track, flicker_hz=flicker_hz, camera=camera)}
+    wanted = [f for f, p in periods.items() if p is not None] if spin_columns is None else \
+        windowless_flights(track, spin_columns, periods)
+    spins = {part.flight: whole_flight_spin(WholeFlightPart(part, periods[part.flight]))
+             for part in flight_parts(events_between, track.select(np.isin(track.flight, wanted)),
+                                      flicker_hz=flicker_hz, camera=camera)}
     return periods, spins
 
 
-def session_flights(session_path, track: Track, options: ReplayOptions) -> tuple[dict, dict]:
+def session_flights(session_path, track: Track, options: ReplayOptions,
+                    spin_columns: dict | None = None) -> tuple[dict, dict]:
     """:func:`flight_analysis` of a stored session, with the flicker its tracker filtered
     (:func:`resolved_options`) and its event camera."""
     flicker = resolved_options(session_path, options).tracker.get("flicker_hz")
     s = open_session(session_path, cache_chunks=2)
-    return flight_analysis(s.events, track, flicker_hz=float(flicker) if flicker else None, camera=event_camera(s))
+    return flight_analysis(s.events, track, flicker_hz=float(flicker) if flicker else None, camera=event_camera(s),
+                           spin_columns=spin_columns)
 
 
 def spin_attrs(spins: dict) -> dict:
@@ -564,11 +598,11 @@ def store_results(session_path, track: Track, spin_columns: dict, options: Repla
                   flights: tuple[dict, dict] | None = None) -> None:
     """Replace a session's track and spin tables with these, and its flights' image periods and
     whole-flight spins (``flights``: ``(periods, spins)`` as :func:`flight_analysis` gives them, default
-    :func:`session_flights`; attrs ``flight_periods``: ``{flight: [period_s, peak, span_s] or None}``,
+    :func:`session_flights`, spins for the :func:`windowless_flights`; attrs ``flight_periods``: ``{flight: [period_s, peak, span_s] or None}``,
     ``flight_spins``: :func:`spin_attrs`), and stamp them (:func:`analysis_stamp`). The old stamp,
     periods and spins go first: a write cut short leaves a session that no batch skips, and nothing of
     other flights."""
-    periods, spins = session_flights(session_path, track, options) if flights is None else flights
+    periods, spins = session_flights(session_path, track, options, spin_columns) if flights is None else flights
     writer = update_session(session_path)
     writer.set_attrs(analysis=None, flight_periods=None, flight_spins=None)
     writer.write_track(track.columns())
@@ -602,19 +636,24 @@ def replay(session_path, *, rrd_path=None, options: ReplayOptions | None = None,
     options.check()
     if rrd_path is not None and Path(rrd_path).is_dir():
         raise ValueError(f"{rrd_path}: is a directory; give the .rrd file to write")
-    # each part of a flight's spin work goes to a worker process as soon as tracking has passed it;
-    # once tracking is done, this process joins in
+    # each part of a flight's spin work goes to a worker process as soon as tracking has passed it (and
+    # each done flight's period); once tracking is done, this process joins in. Then each flight whose
+    # windows give no spin gets its spin from all its events, its events read again (most flights: none)
     workers = options.workers if open_session(session_path).duration_s >= WORKERS_MIN_SPAN_S else 1
-    # (and each done flight's whole-flight work)
     with SharedWork(_replay_unit, workers, preload=WORKER_PRELOAD,
                     initializer=one_thread_per_worker) as work:
         add = lambda part: work.add((part, options))  # noqa: E731
         track = track_session(session_path, options, progress, on_part=add, on_flight=add)
         results = work.results(progress, desc="spin")
-    spin_columns = concat_tables([r for r in results if isinstance(r, dict)], SPIN_COLUMNS, sort_by="t_start_us")
-    done = [r for r in results if isinstance(r, tuple)]
-    store_results(session_path, track, spin_columns, options,
-                  ({f: period for f, period, _ in done}, {f: found for f, _, found in done}))
+        spin_columns = concat_tables([r for r in results if isinstance(r, dict)], SPIN_COLUMNS,
+                                     sort_by="t_start_us")
+        periods = {r[1]: r[2] for r in results if isinstance(r, tuple)}  # ("period", flight, period)
+        s = open_session(session_path, cache_chunks=2)
+        wanted = windowless_flights(track, spin_columns, periods)
+        for part in flight_parts(s.events, track.select(np.isin(track.flight, wanted)), camera=event_camera(s)):
+            add(WholeFlightPart(part, periods[part.flight]))
+        spins = {r[1]: r[2] for r in work.results(progress, desc="whole flights")[len(results):]}
+    store_results(session_path, track, spin_columns, options, (periods, spins))
     if rrd_path is not None:
         from capture.review import write_rrd  # Rerun's SDK takes 0.3 s to import: only when a review is asked for
 
