@@ -12,8 +12,9 @@ basketball, radius 10, 20 and 36 px, tracked by ``detect.track_ball``, as a repl
 track's circle uncertainty taken into each estimate and without it (the circle taken as exact).
 
 ``--flights``: whole simulated flights (every texture, 10-150 rps, 0.4 s, through the tracker), summed up per
-flight as the results table does: flights with a trusted rate from the windows, and from the period over
-which the ball's image repeats (:func:`capture.pipeline.replay.flight_periods`), right or not.
+flight as the results table does: flights with a trusted rate from the windows, from the period over
+which the ball's image repeats, and the whole flight's spin at that period's speed
+(:func:`capture.pipeline.replay.flight_analysis`), right or not.
 
 ``--paper``: after the seed paper's Figs 9-10 / Table 1: volleyball at 10..500 rps and soccer
 at 100 rps (random axes, 640x480, threshold 0.15, 50,000 events, radius 100 px), plus

@@ -263,10 +263,10 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_contradicts``, ``spin_from``.
 
     ``periods`` (``{flight: (period_s, peak, span_s) or None}``, as the analysis stores them:
-    :func:`capture.pipeline.replay.flight_periods`) gives each flight's rate from the period of its
+    :func:`capture.pipeline.replay.flight_analysis`) gives each flight's rate from the period of its
     image, for any texture (``period_rpm``, ``period_rpm_sigma``; NaN where no repeat was found, or
     where the windows' median rate, the trusted ones' where they stand, singles out no fold of it:
-    :func:`period_rate`). It does not give the axis, and needs at least one window. Where the
+    :func:`period_rate`). It does not give the axis (``flight_spins`` does), and needs at least one window. Where the
     trusted windows' median rate lies more than :data:`PERIOD_CONTRADICTS` from every rate the
     period allows, the flight's spin is not trusted (``period_contradicts``; its spin columns NaN).
 
@@ -400,7 +400,7 @@ def format_flight_table(table: dict) -> str:
     n_period = int(np.isfinite(np.asarray(table.get("period_rpm", []), float)).sum())
     n_whole = sum(f == "flight" for f in table.get("spin_from", ()))
     lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin"
-                 + (f" ({n_whole} marked *: from all the flight's events at the period's speed, no window trusted)"
+                 + (f" ({n_whole} marked *: from all the flight's events at the period's speed, where its windows give none)"
                     if n_whole else "")
                  + (f", {n_period} with a rate from the image's period" if period else "")
                  + " (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
