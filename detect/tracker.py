@@ -584,7 +584,12 @@ class BallTracker:
         return self._last_t
 
     def update_frame(self, image: np.ndarray, t_us: int) -> None:
-        """Queue a frame whose (mid-exposure) time on the event clock is ``t_us``."""
+        """Queue a frame (grey or BGR, the sensor's size: in the event camera's geometry) whose
+        (mid-exposure) time on the event clock is ``t_us``."""
+        shape = np.shape(image)
+        if len(shape) not in (2, 3) or tuple(shape[:2]) != (self.height, self.width):
+            raise DetectInputError(f"frame of shape {shape} is not the {self.width}x{self.height} sensor's size; map "
+                                   "frames into the event camera's geometry first (calib.stereo.CameraPair)")
         heapq.heappush(self._frame_queue, (int(t_us), next(self._frame_seq), image))
 
     def finish(self) -> Track:

@@ -641,6 +641,10 @@ def test_tracker_refuses_bad_input_on_one_line():
     with pytest.raises(DetectInputError, match="before the previous batch's last event"):
         tracker.update(ev[: len(ev) // 2])
     assert tracker.last_t_us == int(ev["t"][-1])
+    # a frame not in the sensor's geometry (a GoPro frame not yet mapped) is refused, not silently unused
+    with pytest.raises(DetectInputError, match=r"frame of shape \(1080, 1920, 3\) is not the 160x120 sensor's size"):
+        track_ball(ev, width=160, height=120, frames=[np.zeros((1080, 1920, 3), np.uint8)], frame_times_us=[0])
+    tracker.update_frame(np.zeros((120, 160, 3), np.uint8), int(ev["t"][-1]))  # BGR of the sensor's size: taken
 
 
 def test_sparse_ball_is_tracked_by_joining_slices():
