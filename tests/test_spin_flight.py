@@ -62,6 +62,19 @@ def test_events_that_keep_their_distance_from_the_centre_are_not_a_spin():
     assert abs(found.axis[2]) > 0.99 and found.excess < 1.5 and not found.trusted
 
 
+def test_events_at_random_places_and_times_are_not_a_spin():
+    """Noise on the disc: no map is sharper than the shuffled one by much (its excess is small, not
+    arbitrary where both score about 1), no axis stands out, nothing is trusted."""
+    rng = np.random.default_rng(0)
+    n = 60_000
+    t = np.sort(rng.integers(0, 300_000, n)).astype(np.int64)
+    angle, radius = rng.uniform(0, 2 * np.pi, n), 20.0 * np.sqrt(rng.uniform(0, 0.7, n))
+    cx, cy, r = np.full(n, 100.0), np.full(n, 80.0), np.full(n, 20.0)
+    found = flight_spin(t, cx + radius * np.cos(angle), cy + radius * np.sin(angle), rng.integers(0, 2, n).astype(np.int8),
+                        cx, cy, r, 0.03, period_sigma_pct=0.5)
+    assert found.ratio < TRUST_RATIO and found.excess < TRUST_EXCESS and not found.trusted
+
+
 def test_too_few_events_or_no_period_give_none():
     columns, _ = _sparse_flight("tennis", 30.0, (0.5, -0.6, 0.62), seed=4)
     assert flight_spin(*(c[:50] for c in columns), 1 / 30.0, period_sigma_pct=0.1) is None
