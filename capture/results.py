@@ -233,7 +233,13 @@ def period_rate(period_s: float, span_s: float, window_rps) -> tuple[float, floa
     near = np.flatnonzero(np.abs(rates / window_rps - 1.0) <= FOLD_TOLERANCE)
     if not len(near):
         return None
-    return float(rates[near[0]]), max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
+    return float(rates[near[0]]), period_sigma_pct(period_s, span_s)
+
+
+def period_sigma_pct(period_s: float, span_s: float) -> float:
+    """1-sigma uncertainty (%) of a rate from an image period ``period_s`` (s) measured over ``span_s`` (s):
+    :data:`PERIOD_SIGMA_REPEATS_PCT` over the number of repeats, at least :data:`PERIOD_SIGMA_FLOOR_PCT`."""
+    return max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
 
 
 PERIOD_CONTRADICTS = 0.05

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from spin import _kernels
+from spin.lens import centring_rotation
+from spin.search import fibonacci_sphere
 
 FOLDS = (1, 2, 3, 4, 5, 6)
 """Turns per period tried: one turn is 1-6 repeats of the image (a soccer ball about a five-fold axis)."""
@@ -89,15 +91,6 @@ class FlightSpin:
         return self.omega_rad_s / (2.0 * math.pi)
 
 
-def sphere_axes(n: int) -> np.ndarray:
-    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice), (n, 3)."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = i * math.pi * (3.0 - math.sqrt(5.0))
-    rho = np.sqrt(1.0 - z * z)
-    return np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z])
-
-
 def cap_axes(centre: np.ndarray, radius_deg: float, n: int) -> np.ndarray:
     """``centre`` (3,) and ``n`` unit vectors spread evenly within ``radius_deg`` of it, (n + 1, 3)."""
     i = np.arange(n) + 0.5
@@ -155,7 +148,7 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
                                         axes, n_cells)
 
     n_cells, n_axes, n_events = SCAN
-    axes = sphere_axes(n_axes)
+    axes = fibonacci_sphere(n_axes).copy()  # (a writable copy: one compiled signature of the kernel)
     found = []  # per fold: its best axis, and the best more than RIVAL_DEG from it
     for fold in FOLDS:
         omega = 2.0 * math.pi / (fold * period_s)
@@ -189,27 +182,17 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     middle = n_speeds // 2  # (the period's own speed, where the map cannot tell: events all at one time)
     omega = float(speeds[max(range(n_speeds), key=lambda i: (at_speed[i], -abs(i - middle)))])
     near = cap_axes(best["axis"], cap_deg / 2.0, n_axes)
-    fine = score(near, np.cos(-omega * t_s), np.sin(-omega * t_s), n_cells, n_events)
+    cos_a, sin_a = np.cos(-omega * t_s), np.sin(-omega * t_s)
+    fine = score(near, cos_a, sin_a, n_cells, n_events)
     axis, fold = near[int(np.argmax(fine))], best["fold"]
     # the same map with the events' turns shuffled among them: what the events' places on the disc alone
     # give (a ring of events round the centre stays a ring about an axis along the line of sight)
     shuffled = np.random.default_rng(0).permutation(len(t_s))
-    null = score(axis[None, :], np.cos(-omega * t_s)[shuffled], np.sin(-omega * t_s)[shuffled], n_cells, n_events)[0]
+    null = score(axis[None, :], cos_a[shuffled], sin_a[shuffled], n_cells, n_events)[0]
     excess = (float(fine.max()) - 1.0) / max(float(null) - 1.0, NULL_FLOOR)
-    if ray is not None:
-        axis = _from_line_of_sight(axis, np.asarray(ray, np.float64))
+    if ray is not None:  # found about the line of sight (its Z): turned back into the camera frame
+        ray = np.asarray(ray, np.float64)
+        axis = centring_rotation(ray / np.linalg.norm(ray)).T @ axis
     return FlightSpin(axis=axis, omega_rad_s=omega, fold=fold, ratio=ratio, excess=excess,
                       trusted=ratio >= TRUST_RATIO and excess >= TRUST_EXCESS, axis_sigma_deg=AXIS_SIGMA_DEG,
                       rps_sigma_pct=float(period_sigma_pct))
-
-
-def _from_line_of_sight(axis: np.ndarray, ray: np.ndarray) -> np.ndarray:
-    """``axis`` found in a frame whose Z is the line of sight ``ray``, in the camera frame: turned by the
-    rotation that takes (0, 0, 1) to ``ray`` about their common normal."""
-    d = ray / np.linalg.norm(ray)
-    k = np.cross([0.0, 0.0, 1.0], d)
-    s, c = np.linalg.norm(k), d[2]
-    if s < 1e-12:
-        return axis
-    k /= s
-    return axis * c + np.cross(k, axis) * s + k * np.dot(k, axis) * (1.0 - c)

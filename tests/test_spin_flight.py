@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import sim
-from spin.flight import TRUST_EXCESS, TRUST_RATIO, _from_line_of_sight, flight_spin
+from spin.flight import TRUST_EXCESS, TRUST_RATIO, flight_spin
+from spin.lens import centring_rotation
 from spin.period import flight_period, on_track_disc
 
 
@@ -82,11 +83,19 @@ def test_too_few_events_or_no_period_give_none():
 
 
 def test_an_axis_found_about_the_line_of_sight_turns_into_the_camera_frame():
-    """Along the optical axis nothing turns; off it, the line of sight's own direction (its Z) maps to the
-    ray, and a direction across it stays across it."""
-    assert np.allclose(_from_line_of_sight(np.array([0.3, 0.4, np.sqrt(0.75)]), np.array([0.0, 0.0, 1.0])),
-                       [0.3, 0.4, np.sqrt(0.75)])
+    """With a line of sight, flight_spin's axis is the one found about it turned by the rotation taking
+    (0, 0, 1) to the ray (``spin.lens.centring_rotation`` transposed): along the optical axis nothing
+    turns; off it, the line of sight's own direction maps to the ray, and a direction across it stays
+    across it."""
+    def turned(axis, ray):
+        return centring_rotation(ray / np.linalg.norm(ray)).T @ axis
+
+    assert np.allclose(turned(np.array([0.3, 0.4, np.sqrt(0.75)]), np.array([0.0, 0.0, 1.0])), [0.3, 0.4, np.sqrt(0.75)])
     ray = np.array([0.3, -0.2, 1.0])
-    assert np.allclose(_from_line_of_sight(np.array([0.0, 0.0, 1.0]), ray), ray / np.linalg.norm(ray))
-    across = _from_line_of_sight(np.array([1.0, 0.0, 0.0]), ray)
+    assert np.allclose(turned(np.array([0.0, 0.0, 1.0]), ray), ray / np.linalg.norm(ray))
+    across = turned(np.array([1.0, 0.0, 0.0]), ray)
     assert abs(np.dot(across, ray)) < 1e-9 and np.linalg.norm(across) == pytest.approx(1.0)
+    columns, _ = _sparse_flight("tennis", 30.0, (0.5, -0.6, 0.62), seed=4)
+    period_s = flight_period(*columns)[0]
+    about = flight_spin(*columns, period_s, period_sigma_pct=0.1).axis
+    assert np.allclose(flight_spin(*columns, period_s, period_sigma_pct=0.1, ray=ray).axis, turned(about, ray))

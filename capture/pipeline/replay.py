@@ -540,12 +540,12 @@ class WholeFlightPart:
 
 def whole_flight_spin(work: WholeFlightPart) -> FlightSpin | None:
     """The flight's spin from all its events at its period's speed (:func:`spin.flight.flight_spin`), the
-    rate's sigma that of the period (:func:`capture.results.period_rate`)."""
-    from capture.results import PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT
+    rate's sigma that of the period (:func:`capture.results.period_sigma_pct`)."""
+    from capture.results import period_sigma_pct
 
     period_s, _, span_s = work.period
-    sigma_pct = max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
-    return flight_spin(*work.part.columns, period_s, period_sigma_pct=sigma_pct, ray=work.part.ray)
+    return flight_spin(*work.part.columns, period_s, period_sigma_pct=period_sigma_pct(period_s, span_s),
+                       ray=work.part.ray)
 
 
 def windowless_flights(track: Track, spin_columns: dict, periods: dict) -> list[int]:
