@@ -44,8 +44,8 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
         The window must hold at least this many periods.
     min_peak, min_prominence : float
         The normalised autocorrelation (1 at lag 0) must reach ``min_peak`` at the period and rise
-        by ``min_prominence`` above its lowest value at shorter lags; the peak taken is the first
-        within 70 % of the highest (the others are its multiples).  A period whose double lies
+        by ``min_prominence`` above its lowest value at shorter lags; of such peaks the one taken is the
+        first within 70 % of the highest (the others are its multiples).  A period whose double lies
         inside the window must show a peak there too, at least half as high.
     """
     if not min_period_s > 0:
@@ -64,6 +64,10 @@ def image_period(ev: BallEvents, velocity_px_s, *, min_period_s: float, n_cells:
     a = _autocorrelation(ev, velocity_px_s, n_cells, n_bins)
     inner = a[lo:hi]
     peaks = np.flatnonzero((inner > a[lo - 1:hi - 1]) & (inner >= a[lo + 1:hi + 1]) & (inner > min_peak)) + lo
+    # a repeat rises above the trough after lag 0; a wiggle on the slow fall from lag 0 (a slow spin's
+    # image changes little from bin to bin) does not
+    trough = np.minimum.accumulate(a[1:hi])  # trough[j - 2]: the lowest of a[1:j]
+    peaks = peaks[a[peaks] - trough[peaks - 2] >= min_prominence]
     if not len(peaks):
         return None
     k = int(peaks[np.argmax(a[peaks] >= 0.7 * a[peaks].max())])

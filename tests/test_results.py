@@ -417,7 +417,8 @@ def test_the_flight_table_takes_a_trusted_whole_flight_spin_where_no_window_is_t
 
     v = (3000, 0)
     whole = FlightSpin(axis=np.array([0.0, 0.0, -1.0]), omega_rad_s=2 * math.pi * 40.0, fold=1, ratio=2.0,
-                       excess=30.0, trusted=True, axis_sigma_deg=1.8, rps_sigma_pct=0.2)
+                       excess=30.0, trusted=True, axis_sigma_deg=1.8, rps_sigma_pct=0.2,
+                       turns=11.0)
     flagged = _spin((0, 0, -1), 30.0, v, conf=0.2)
     t = flight_table(_track(v), flagged, flight_spins={0: whole})
     assert t["spin_from"][0] == "flight" and t["rpm"][0] == pytest.approx(2400.0)

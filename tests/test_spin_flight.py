@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 
 import sim
-from spin.flight import TRUST_EXCESS, TRUST_RATIO, flight_spin
+from spin.flight import TRUST_EXCESS, TRUST_RATIO, TRUST_TURNS, flight_spin
 from spin.lens import centring_rotation
 from spin.period import flight_period, on_track_disc
 
 
-def _sparse_flight(texture, rps, axis, seed):
-    """A simulated flight falling on its arc (320x240, 0.3 s, r = 18 px, realistic sensor), its events on
-    the truth track's inner disc (as the analysis takes them) and the truth."""
-    rec = sim.flight(texture, rps=rps, axis=axis, radius_px=18.0, width=320, height=240, duration_s=0.3,
-                     distractors=(), sensor="realistic", seed=seed)
+def _sparse_flight(texture, rps, axis, seed, radius_px=18.0, size=(320, 240), duration_s=0.3):
+    """A simulated flight falling on its arc (by default 320x240, 0.3 s, r = 18 px; realistic sensor), its
+    events on the truth track's inner disc (as the analysis takes them) and the truth."""
+    rec = sim.flight(texture, rps=rps, axis=axis, radius_px=radius_px, width=size[0], height=size[1],
+                     duration_s=duration_s, distractors=(), sensor="realistic", seed=seed)
     track = rec.truth_track()
     ev = rec.events
     idx, cx, cy, r = on_track_disc(ev["t"], ev["x"], ev["y"], track.t_us, track.cx, track.cy, track.r)
@@ -38,6 +38,33 @@ def test_a_sparse_ball_s_axis_comes_from_its_whole_flight(texture, axis):
     assert found.trusted and found.ratio >= TRUST_RATIO and found.excess >= TRUST_EXCESS and found.fold == 1
     assert _axis_error_deg(found.axis, truth["axis"]) < 5.0
     assert found.rps == pytest.approx(30.0, rel=0.01)
+
+
+def test_a_slow_ball_s_rate_comes_from_its_three_turns_but_its_axis_is_not_trusted():
+    """At 10 rps a 0.3 s flight turns three times, enough for a period (spin.period) and so for the
+    whole flight's spin, which refines the period's speed (1-2 % short on this steep arc). The axis comes
+    out near the truth here, but three turns pin it less than it needs to be trusted."""
+    columns, truth = _sparse_flight("logo", 10.0, (0.5, -0.6, 0.62), seed=4)
+    period_s = flight_period(*columns)[0]
+    found = flight_spin(*columns, period_s, period_sigma_pct=0.7)
+    assert found.fold == 1 and found.rps == pytest.approx(10.0, rel=0.01)
+    assert _axis_error_deg(found.axis, truth["axis"]) < 5.0
+    assert found.ratio >= TRUST_RATIO and found.excess >= TRUST_EXCESS
+    assert found.turns == pytest.approx(3.0, abs=0.2) and not found.trusted
+
+
+def test_a_slow_ball_whose_map_misleads_is_not_trusted():
+    """A soccer ball at 10 rps drifting across a 640x480 sensor, 3.5 turns in 0.4 s (the flight of held-out
+    seed 3 of ``bench/spin_bench.py --flights``): an edge's polarity changes through a turn, the signed map
+    cancels it at the right axis and is sharpest 18 deg away, where the map and its shuffled twin pass it;
+    the flight holds too few turns to trust it."""
+    columns, truth = _sparse_flight("soccer", 10.0, (-0.35189291, 0.01616852, 0.93590062), seed=3,
+                                    radius_px=22.08, size=(640, 480), duration_s=0.4)
+    period_s = flight_period(*columns)[0]
+    found = flight_spin(*columns, period_s, period_sigma_pct=0.7)
+    assert _axis_error_deg(found.axis, truth["axis"]) > 10.0 and found.rps == pytest.approx(10.0, rel=0.01)
+    assert found.ratio >= TRUST_RATIO and found.excess >= TRUST_EXCESS  # (the map's own checks pass)
+    assert found.turns < TRUST_TURNS and not found.trusted
 
 
 def test_a_speed_the_period_does_not_allow_gives_no_trusted_spin():

@@ -204,6 +204,20 @@ def test_a_sparse_ball_repeats_once_a_turn_through_its_flight(texture):
     assert flight_period(t, rec.events["x"], rec.events["y"], rec.events["p"], *t0) is None
 
 
+@pytest.mark.parametrize("texture", ["volleyball", "logo"])
+def test_a_slow_ball_repeats_once_a_turn_through_its_flight(texture):
+    """At 10 rps a 0.3 s flight holds three turns. The image changes little from one time bin to the next,
+    so the autocorrelation falls slowly from lag 0, and a wiggle on that fall is not a repeat: it was
+    taken for the first peak and the flight had no period."""
+    rec, t, circle = _flight_on_track(texture, 10.0)
+    found = flight_period(t, rec.events["x"], rec.events["y"], rec.events["p"], *circle)
+    assert found is not None
+    period_s, peak, span_s = found
+    assert period_s * 10.0 == pytest.approx(1.0, abs=0.03) and peak > 0.15
+    rps, sigma_pct = period_rate(period_s, span_s, 10.0)
+    assert abs(rps / 10.0 - 1.0) * 100 <= 2 * sigma_pct
+
+
 def test_a_plain_ball_shows_no_period():
     rec, t, circle = _flight_on_track("plain", 30.0)
     assert flight_period(t, rec.events["x"], rec.events["y"], rec.events["p"], *circle) is None
