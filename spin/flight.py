@@ -85,8 +85,9 @@ class FlightSpin:
     """A flight's spin from all its events: ``axis`` (3,) unit vector (camera frame), ``omega_rad_s``,
     ``fold`` (the image repeats this many times a turn), ``ratio`` (the map's sharpness at the answer over
     its rival's), ``excess`` (its sharpness above 1 over that of the map with the events' turns shuffled),
-    ``trusted`` (``ratio >= TRUST_RATIO`` and ``excess >= TRUST_EXCESS``), ``axis_sigma_deg`` and
-    ``rps_sigma_pct`` (1 sigma), ``turns`` (turns through the events, :data:`TRUST_TURNS`)."""
+    ``trusted`` (``ratio >= TRUST_RATIO``, ``excess >= TRUST_EXCESS`` and ``turns >= TRUST_TURNS``),
+    ``axis_sigma_deg`` and ``rps_sigma_pct`` (1 sigma), ``turns`` (turns through the events at the answer's
+    speed)."""
 
     axis: np.ndarray
     omega_rad_s: float
@@ -184,8 +185,8 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     # the period may be a little off (a steep arc across a small sensor: up to about 1 %), and over many
     # turns that blurs the map: the speed is refined at the axis found, and the axis again at that speed
     cap_deg, n_cells, n_axes, n_events = REFINE[-1]
-    turns = best["omega"] * float(t_s[-1]) / (2.0 * math.pi)
-    n_speeds = min(2 * max(1, int(math.ceil(SPEED_SPAN * turns * 360.0 / SPEED_DRIFT_DEG))) + 1, MAX_SPEEDS)
+    span_turns = best["omega"] * float(t_s[-1]) / (2.0 * math.pi)
+    n_speeds = min(2 * max(1, int(math.ceil(SPEED_SPAN * span_turns * 360.0 / SPEED_DRIFT_DEG))) + 1, MAX_SPEEDS)
     speeds = best["omega"] * (1.0 + np.linspace(-SPEED_SPAN, SPEED_SPAN, n_speeds))
     step = max(1, len(t_s) // (n_events // 2))
     sub = [np.ascontiguousarray(a[::step]) for a in (*points, pol, t_s)]
@@ -202,11 +203,10 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     shuffled = np.random.default_rng(0).permutation(len(t_s))
     null = score(axis[None, :], cos_a[shuffled], sin_a[shuffled], n_cells, n_events)[0]
     excess = (float(fine.max()) - 1.0) / max(float(null) - 1.0, NULL_FLOOR)
-    turns = omega * float(t_s[-1]) / (2.0 * math.pi)
+    turns = span_turns * omega / best["omega"]  # at the refined speed
     if ray is not None:  # found about the line of sight (its Z): turned back into the camera frame
         ray = np.asarray(ray, np.float64)
         axis = centring_rotation(ray / np.linalg.norm(ray)).T @ axis
     return FlightSpin(axis=axis, omega_rad_s=omega, fold=fold, ratio=ratio, excess=excess,
                       trusted=ratio >= TRUST_RATIO and excess >= TRUST_EXCESS and turns >= TRUST_TURNS,
                       axis_sigma_deg=AXIS_SIGMA_DEG, rps_sigma_pct=float(period_sigma_pct), turns=turns)
-
