@@ -210,7 +210,8 @@ def period_flight(case) -> list[dict]:
                     "flight_axis_deg": float(whole_errors[0]), "flight_rps_pct": float(whole_errors[1]),
                     "flight_ratio": float(whole.ratio) if whole is not None else np.nan,
                     "flight_trusted": bool(whole is not None and whole.trusted),
-                    "spin_from": str(table["spin_from"][i])})
+                    "flight_fold_ratio": float(whole.fold_ratio) if whole is not None else np.nan,
+                    "spin_from": str(table["spin_from"][i]), "period_fold_from": str(table["period_fold_from"][i])})
     return out
 
 
@@ -258,6 +259,10 @@ def bench_flights(seeds, jobs: int) -> list[dict]:
         if r["flight_trusted"] and not (r["flight_axis_deg"] < 5 and r["flight_rps_pct"] < 5):
             print(f"  trusted whole-flight spin wrong: {r['case']} flight {r['flight']}: {r['flight_axis_deg']:.1f} deg, "
                   f"{r['flight_rps_pct']:.2f} %, ratio {r['flight_ratio']:.2f}")
+    by_whole = [r for r in recs if r["period_fold_from"] == "flight"]
+    print(f"  period rates whose fold the whole flight's map gave (its windows singled out none): {len(by_whole)}, "
+          f"right {sum(abs(r['period_rpm'] / r['true_rpm'] - 1) < 0.05 for r in by_whole)}, of which "
+          f"{sum(not r['flight_trusted'] for r in by_whole)} without a trusted axis")
     for r in recs:
         if np.isfinite(r["period_rpm"]) and abs(r["period_rpm"] / r["true_rpm"] - 1) >= 0.05:
             print(f"  wrong period rate: {r['case']} flight {r['flight']}: {r['period_rpm']:.0f} ± "

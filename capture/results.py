@@ -266,7 +266,8 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     ``axis_z``, ``axis_sigma_deg``, ``topspin_rpm``, ``sidespin_rpm``, ``gyro_rpm``, ``efficiency``,
     ``tilt``, ``image_speed_px_s``, ``radius_px``, ``distance_m``, ``distance_sigma_m``, ``speed_m_s`` (3D),
     ``speed_sigma_m_s``, ``speed_km_h``, ``speed_los_m_s`` (along the line of sight, > 0 away),
-    ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_contradicts``, ``spin_from``.
+    ``speed_across_m_s``, ``period_rpm``, ``period_rpm_sigma``, ``period_fold_from``, ``period_contradicts``,
+    ``spin_from``.
 
     ``periods`` (``{flight: (period_s, peak, span_s) or None}``, as the analysis stores them:
     :func:`capture.pipeline.replay.flight_analysis`) gives each flight's rate from the period of its
@@ -279,7 +280,11 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
     ``flight_spins`` (``{flight: spin.flight.FlightSpin or its stored dict (capture.pipeline.replay.spin_attrs)
     or None}``) gives a flight's spin from all its events at the period's speed: where its windows give no
     trusted spin, a trusted whole-flight spin fills the spin columns (its rate, axis and their sigmas).
-    ``spin_from`` says where they come from: ``"windows"``, ``"flight"`` or ``"-"``.
+    ``spin_from`` says where they come from: ``"windows"``, ``"flight"`` or ``"-"``. Where the windows
+    single out no fold of the period, a whole-flight spin whose rate stands (``rate_trusted``: its map tells
+    its fold from the others, whether or not its axis is trusted) gives the fold: a slow ball's few turns,
+    whose axis is not trusted, still give its rate. ``period_fold_from`` says which: ``"windows"``,
+    ``"flight"`` or ``"-"`` (no period rate).
     """
     win = window_table(track, spin)
     rows = []
@@ -307,9 +312,16 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
         # are mostly right where a sparse ball's axes are not)
         by_period = None if found is None or not mine.any() else period_rate(
             found[0], found[2], float(np.median(win["rps"][mine])) if contradicted or not ok.any() else trusted_rps)
+        stored_whole = (flight_spins or {}).get(int(fl))
+        fold = _flight_fold(stored_whole)
+        row["period_fold_from"] = "windows" if by_period is not None else "-"
+        if by_period is None and found is not None and fold is not None:
+            # no window singles out the period's fold: the whole flight's map does, where it tells its fold apart
+            by_period = float(period_folds(found[0])[fold - 1]), period_sigma_pct(found[0], found[2])
+            row["period_fold_from"] = "flight"
         if by_period is not None:
             row.update(period_rpm=60.0 * by_period[0], period_rpm_sigma=60.0 * by_period[0] * by_period[1] / 100.0)
-        whole = _trusted_flight_spin((flight_spins or {}).get(int(fl)))
+        whole = _trusted_flight_spin(stored_whole)
         row["spin_from"] = "windows" if ok.any() and not contradicted else "flight" if whole else "-"
         if row["spin_from"] == "flight":
             axis, rate = whole
@@ -347,9 +359,18 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
              "rpm", "rpm_sigma", "rps", "axis_x", "axis_y", "axis_z", "axis_sigma_deg", "topspin_rpm",
              "sidespin_rpm", "gyro_rpm", "efficiency", "tilt", "image_speed_px_s", "radius_px", "distance_m",
              "distance_sigma_m", "speed_m_s", "speed_sigma_m_s", "speed_km_h", "speed_los_m_s", "speed_across_m_s",
-             "period_rpm", "period_rpm_sigma", "period_contradicts", "spin_from"]
-    return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball", "spin_from") else None)
+             "period_rpm", "period_rpm_sigma", "period_fold_from", "period_contradicts", "spin_from"]
+    return {k: np.array([row[k] for row in rows], dtype=object if k in ("tilt", "ball", "spin_from", "period_fold_from") else None)
             for k in names}
+
+
+def _flight_fold(found) -> int | None:
+    """The fold (repeats of the image per turn) of a whole-flight spin (a ``spin.flight.FlightSpin`` or its
+    stored dict) whose rate stands (``rate_trusted``; in a dict stored before that was: ``trusted``), or None."""
+    if found is None:
+        return None
+    get = found.get if isinstance(found, dict) else lambda k, d=None: getattr(found, k, d)
+    return int(get("fold")) if get("rate_trusted", get("trusted")) else None
 
 
 def _trusted_flight_spin(found) -> tuple[np.ndarray, dict] | None:
@@ -389,7 +410,9 @@ def format_flight_table(table: dict) -> str:
                     f"{sidespin:>8d} {gyro:>7d} "
                     f"{100 * table['efficiency'][i]:>4.0f}% {table['tilt'][i]:>6}")
         else:
-            why = "contradicted by the period" if table.get("period_contradicts", [False] * n)[i] else "no trusted estimate"
+            rate_only = np.isfinite(table.get("period_rpm", [np.nan] * n)[i])
+            why = ("contradicted by the period" if table.get("period_contradicts", [False] * n)[i]
+                   else "no trusted axis: rate from the period" if rate_only else "no trusted estimate")
             spin = f"{why:>51}"
         line = ((f"{table['ball'][i]:<{width}} " if balls else "")
                 + f"{table['flight'][i]:>6} {table['t_start_s'][i]:>8.3f} {table['duration_ms'][i]:>6.0f} "
@@ -399,16 +422,20 @@ def format_flight_table(table: dict) -> str:
             line += f" {table['distance_m'][i]:>5.1f} {kmh:>12}"
         if period:
             p_rpm, p_sigma = table["period_rpm"][i], table["period_rpm_sigma"][i]
-            by_period = f"{p_rpm:.0f} ± {p_sigma:.0f}" if np.isfinite(p_rpm) else "-"
+            whole_fold = table.get("period_fold_from", ["-"] * n)[i] == "flight"
+            by_period = f"{'*' if whole_fold else ''}{p_rpm:.0f} ± {p_sigma:.0f}" if np.isfinite(p_rpm) else "-"
             line += f" {by_period:>13}"
         lines.append(line)
     ok = int(np.isfinite(np.asarray(table["rpm"], float)).sum())
     n_period = int(np.isfinite(np.asarray(table.get("period_rpm", []), float)).sum())
     n_whole = sum(f == "flight" for f in table.get("spin_from", ()))
+    n_fold = sum(f == "flight" for f in table.get("period_fold_from", ()))
     lines.append(f"yield: {ok} of {n} flight(s) with a trusted spin"
                  + (f" ({n_whole} marked *: from all the flight's events at the period's speed, where its windows give none)"
                     if n_whole else "")
                  + (f", {n_period} with a rate from the image's period" if period else "")
+                 + (f" ({n_fold} marked *: its turn from all the flight's events, where its windows give none)"
+                    if n_fold else "")
                  + " (rpm = 60 x rps; topspin, sidespin, gyro in rpm; "
                  "tilt seen from behind, 12:00 backspin" + ("; m: distance, km/h: 3D speed ± 1 sigma" if speed else "")
                  + ("; period rpm: how often the ball's image repeats, ± 1 sigma" if period else "") + ")")

@@ -15,7 +15,8 @@ The answer holds for a spin that stays the same through the flight (a ball in fr
 flight whose spin changes (a bounce, a hit inside one track) gives no sharp map at any axis. It is
 trusted where the map is much sharper at the answer than at its rival (the best axis more than
 :data:`RIVAL_DEG` away or at another fold) and than with the events' turns shuffled among them
-(:data:`TRUST_EXCESS`), and where the flight holds enough turns (:data:`TRUST_TURNS`).
+(:data:`TRUST_EXCESS`), and where the flight holds enough turns (:data:`TRUST_TURNS`). Its rate alone, the
+fold of the period, stands where the map is sharper at that fold than at any other (:data:`TRUST_FOLD_RATIO`).
 """
 
 from __future__ import annotations
@@ -73,6 +74,13 @@ tuning seeds (1, 2), 1.8-4.5 deg and that soccer ball on seeds 3, 4, and 0.7-7.2
 nine beyond 5 deg), all seen before this rule; at 30 rps (10 turns) and faster at most 3.2 deg (tuning).
 On seeds 7, 8, made afterwards, all nine such answers were right (0.5-3.2 deg): 4 wrong of 37 over seeds
 1-8, where a trusted answer must be right in 99 %."""
+TRUST_FOLD_RATIO = 1.1
+"""The rate alone (the fold of the period that is one turn) stands where the whole sphere's scan is at least
+this much sharper at the answer's fold than at any other, whatever the axis's checks say: a slow ball's few
+turns, or a texture whose axis the map cannot pin, still tell one fold from the others. On the tuning flights
+(seeds 1, 2 of ``bench/spin_bench.py --flights``, 49 with a period) every fold was right; the two below this,
+at 1.01 and 1.06, were balls whose map peaked about an axis near the line of sight (36 and 78 deg off, the
+rings of the shading's edge, sharp at every speed), the lowest above it a soccer ball at fold 5 (1.17)."""
 AXIS_SIGMA_DEG = 1.8
 """1-sigma axis uncertainty (deg) of an answer: its error comes mostly from the map's cells and the
 track's circle, not from the events' number (the flight's two halves in time, refitted apart, agreed
@@ -87,7 +95,9 @@ class FlightSpin:
     its rival's), ``excess`` (its sharpness above 1 over that of the map with the events' turns shuffled),
     ``trusted`` (``ratio >= TRUST_RATIO``, ``excess >= TRUST_EXCESS`` and ``turns >= TRUST_TURNS``),
     ``axis_sigma_deg`` and ``rps_sigma_pct`` (1 sigma), ``turns`` (turns through the events at the answer's
-    speed)."""
+    speed), ``fold_ratio`` (the whole-sphere scan's best sharpness at the answer's fold over its best at any
+    other fold) and ``rate_trusted`` (the fold, hence the rate, stands: ``trusted`` or
+    ``fold_ratio >= TRUST_FOLD_RATIO``, whatever the axis)."""
 
     axis: np.ndarray
     omega_rad_s: float
@@ -98,6 +108,8 @@ class FlightSpin:
     axis_sigma_deg: float
     rps_sigma_pct: float
     turns: float
+    fold_ratio: float
+    rate_trusted: bool
 
     @property
     def rps(self) -> float:
@@ -163,6 +175,7 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     n_cells, n_axes, n_events = SCAN
     axes = fibonacci_sphere(n_axes).copy()  # (a writable copy: one compiled signature of the kernel)
     found = []  # per fold: its best axis, and the best more than RIVAL_DEG from it
+    fold_top = {}  # per fold: the scan's best score
     for fold in FOLDS:
         omega = 2.0 * math.pi / (fold * period_s)
         angle = -omega * t_s  # turned back to the first event's time
@@ -171,6 +184,7 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
         top = int(np.argmax(scan))
         apart = np.flatnonzero(np.degrees(np.arccos(np.clip(axes @ axes[top], -1.0, 1.0))) > RIVAL_DEG)
         other = int(apart[np.argmax(scan[apart])])
+        fold_top[fold] = float(scan[top])
         found += [dict(fold=fold, omega=omega, trig=trig, axis=axes[k], score=float(scan[k])) for k in (top, other)]
     refined = sorted(found, key=lambda c: -c["score"])[:REFINED]
     for c in refined:
@@ -182,6 +196,7 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     rivals = [c["score"] for c in refined if c["fold"] != best["fold"]
               or np.degrees(np.arccos(np.clip(c["axis"] @ best["axis"], -1.0, 1.0))) > RIVAL_DEG]
     ratio = best["score"] / max(max(rivals, default=0.0), 1e-12)
+    fold_ratio = fold_top[best["fold"]] / max(max(v for f, v in fold_top.items() if f != best["fold"]), 1e-12)
     # the period may be a little off (a steep arc across a small sensor: up to about 1 %), and over many
     # turns that blurs the map: the speed is refined at the axis found, and the axis again at that speed
     cap_deg, n_cells, n_axes, n_events = REFINE[-1]
@@ -207,6 +222,7 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     if ray is not None:  # found about the line of sight (its Z): turned back into the camera frame
         ray = np.asarray(ray, np.float64)
         axis = centring_rotation(ray / np.linalg.norm(ray)).T @ axis
-    return FlightSpin(axis=axis, omega_rad_s=omega, fold=fold, ratio=ratio, excess=excess,
-                      trusted=ratio >= TRUST_RATIO and excess >= TRUST_EXCESS and turns >= TRUST_TURNS,
-                      axis_sigma_deg=AXIS_SIGMA_DEG, rps_sigma_pct=float(period_sigma_pct), turns=turns)
+    trusted = ratio >= TRUST_RATIO and excess >= TRUST_EXCESS and turns >= TRUST_TURNS
+    return FlightSpin(axis=axis, omega_rad_s=omega, fold=fold, ratio=ratio, excess=excess, trusted=trusted,
+                      axis_sigma_deg=AXIS_SIGMA_DEG, rps_sigma_pct=float(period_sigma_pct), turns=turns,
+                      fold_ratio=fold_ratio, rate_trusted=trusted or fold_ratio >= TRUST_FOLD_RATIO)

@@ -113,7 +113,8 @@ def test_a_flight_without_a_trusted_window_gets_its_rate_from_its_image_period()
     assert t["period_rpm_sigma"][1] == pytest.approx(1800.0 * PERIOD_SIGMA_REPEATS_PCT * (1 / 150) / 0.1 / 100)
     text = format_flight_table(t)
     assert "period rpm" in text.splitlines()[0] and f"1800 ± {t['period_rpm_sigma'][1]:.0f}" in text.splitlines()[2]
-    assert "no trusted estimate" in text and "1 of 2 flight(s) with a trusted spin, 2 with a rate from" in text
+    assert "no trusted axis: rate from the period" in text.splitlines()[2]
+    assert "1 of 2 flight(s) with a trusted spin, 2 with a rate from" in text and "marked" not in text
     assert not t["period_contradicts"].any()
     # no period found, or windows that single out no fold: NaN, and no column
     for bad in ({}, {0: None, 1: (1 / 40.0, 0.9, 0.1)}):
@@ -418,7 +419,7 @@ def test_the_flight_table_takes_a_trusted_whole_flight_spin_where_no_window_is_t
     v = (3000, 0)
     whole = FlightSpin(axis=np.array([0.0, 0.0, -1.0]), omega_rad_s=2 * math.pi * 40.0, fold=1, ratio=2.0,
                        excess=30.0, trusted=True, axis_sigma_deg=1.8, rps_sigma_pct=0.2,
-                       turns=11.0)
+                       turns=11.0, fold_ratio=3.0, rate_trusted=True)
     flagged = _spin((0, 0, -1), 30.0, v, conf=0.2)
     t = flight_table(_track(v), flagged, flight_spins={0: whole})
     assert t["spin_from"][0] == "flight" and t["rpm"][0] == pytest.approx(2400.0)
@@ -428,8 +429,49 @@ def test_the_flight_table_takes_a_trusted_whole_flight_spin_where_no_window_is_t
     stored = {0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": whole.omega_rad_s, "fold": 1, "ratio": 2.0,
                   "excess": 30.0, "trusted": True, "axis_sigma_deg": 1.8, "rps_sigma_pct": 0.2}}
     assert flight_table(_track(v), flagged, flight_spins=stored)["rpm"][0] == pytest.approx(2400.0)
-    untrusted = replace(whole, ratio=1.1, trusted=False)
+    untrusted = replace(whole, ratio=1.1, trusted=False, fold_ratio=1.0, rate_trusted=False)
     t = flight_table(_track(v), flagged, flight_spins={0: untrusted})
     assert t["spin_from"][0] == "-" and not np.isfinite(t["rpm"][0])
     t = flight_table(_track(v), _spin((0, 0, -1), 30.0, v), flight_spins={0: whole})
     assert t["spin_from"][0] == "windows" and t["rpm"][0] == pytest.approx(1800.0)
+
+
+def test_a_slow_ball_s_rate_comes_from_the_whole_flight_s_fold_where_its_windows_single_out_none():
+    """A slow ball (10 rps): its windows give no trusted spin and rates that single out no fold of its
+    period; its whole-flight spin, whose axis is not trusted over few turns, tells its fold from the
+    others (``rate_trusted``): the period's rate at that fold fills ``period_rpm``, marked
+    ``period_fold_from="flight"`` (``*`` in the printed table), and the spin columns stay NaN. A
+    whole-flight spin whose fold the map cannot tell gives nothing, and a fold the windows single out
+    stands."""
+    import math
+
+    from spin.flight import FlightSpin
+
+    v = (3000, 0)
+    windows = _spin((0, 1, 0), 13.0, v, conf=0.2)  # 30 % off: within 7 % of no fold of the period
+    periods = {0: (1 / 10.0, 0.6, 0.35)}
+    slow = FlightSpin(axis=np.array([0.0, 0.0, -1.0]), omega_rad_s=2 * math.pi * 10.02, fold=1, ratio=2.0,
+                      excess=30.0, trusted=False, axis_sigma_deg=1.8, rps_sigma_pct=0.7, turns=3.5,
+                      fold_ratio=1.8, rate_trusted=True)
+    t = flight_table(_track(v), windows, periods=periods, flight_spins={0: slow})
+    assert t["spin_from"][0] == "-" and np.isnan(t["rpm"][0]) and np.isnan(t["axis_x"][0])
+    assert t["period_fold_from"][0] == "flight" and t["period_rpm"][0] == pytest.approx(600.0)
+    assert t["period_rpm_sigma"][0] == pytest.approx(600.0 * PERIOD_SIGMA_REPEATS_PCT * 0.1 / 0.35 / 100)
+    text = format_flight_table(t)
+    assert "no trusted axis: rate from the period" in text.splitlines()[1]
+    assert f"*600 ± {t['period_rpm_sigma'][0]:.0f}" in text.splitlines()[1] and "1 marked *: its turn" in text
+    # the image repeats twice a turn (fold 2): the rate is half the period's
+    t = flight_table(_track(v), windows, periods={0: (1 / 20.0, 0.6, 0.35)},
+                     flight_spins={0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": slow.omega_rad_s, "fold": 2,
+                                       "trusted": False, "rate_trusted": True}})
+    assert t["period_rpm"][0] == pytest.approx(600.0) and t["period_fold_from"][0] == "flight"
+    # a fold the map cannot tell, or a spin stored before rate_trusted was and not trusted: no rate
+    for unsure in ({0: FlightSpin(**{**slow.__dict__, "fold_ratio": 1.02, "rate_trusted": False})},
+                   {0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": slow.omega_rad_s, "fold": 1, "trusted": False}}):
+        t = flight_table(_track(v), windows, periods=periods, flight_spins=unsure)
+        assert np.isnan(t["period_rpm"][0]) and t["period_fold_from"][0] == "-"
+        assert "no trusted estimate" in format_flight_table(t).splitlines()[1]
+    # windows whose median singles out a fold: theirs stands, whatever the whole flight says
+    t = flight_table(_track(v), _spin((0, 1, 0), 5.1, v, conf=0.2), periods=periods,
+                     flight_spins={0: FlightSpin(**{**slow.__dict__, "fold": 1})})
+    assert t["period_fold_from"][0] == "windows" and t["period_rpm"][0] == pytest.approx(300.0)

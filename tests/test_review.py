@@ -344,6 +344,25 @@ def test_flights_marked_on_the_plots_and_in_the_log(written):
     assert "flight 1 ends (1 ms)" in texts
 
 
+def test_a_flight_with_a_rate_but_no_trusted_axis_says_so_in_the_log(tmp_path):
+    """Flight 1's one window is not trusted and its rate (30.5 rps) singles out no fold of the period the
+    analysis stored (0.1 s); the whole flight's spin, not trusted but sure of its fold, gives the turn: the
+    log gives the rate from the image's period and says the axis is not trusted."""
+    from capture.session import update_session
+
+    session = _make_session(tmp_path / "session", frames="none")
+    w = update_session(session)
+    w.set_attrs(flight_periods={"0": None, "1": [0.1, 0.6, 0.35]},
+                flight_spins={"1": {"axis": [0.0, 0.0, -1.0], "omega_rad_s": 2 * np.pi * 10.0, "fold": 1, "ratio": 2.0,
+                                    "excess": 30.0, "trusted": False, "axis_sigma_deg": 1.8, "rps_sigma_pct": 0.7,
+                                    "turns": 3.5, "fold_ratio": 1.8, "rate_trusted": True}})
+    w.close()
+    review.write_rrd(session, tmp_path / "out.rrd", slice_us=SLICE_US, max_events_per_slice=CAP, progress=False)
+    texts = _texts(read_rrd(tmp_path / "out.rrd"))
+    sigma = 600.0 * 6.0 * 0.1 / 0.35 / 100.0  # capture.results.PERIOD_SIGMA_REPEATS_PCT over the repeats
+    assert f"flight 1 starts: no trusted axis, 600 ± {sigma:.0f} rpm from the image's period, 0/1 windows trusted" in texts
+
+
 def _blueprint(rrd) -> dict:
     """Blueprint entity -> component -> value of the review's blueprint."""
     reader = RrdReader(rrd)

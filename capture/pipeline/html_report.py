@@ -29,7 +29,7 @@ _COLUMNS = [("flight", "flight", "{}"), ("ball", "ball", "{}"), ("t_start_s", "s
             ("axis_sigma_deg", "axis ± deg (1σ)", "{:.1f}"), ("image_speed_px_s", "image speed (px/s)", "{:.0f}"),
             ("distance_m", "distance (m)", "{:.1f}"), ("speed_km_h", "3D speed (km/h)", "{:.1f}"),
             ("speed_sigma_m_s", "± m/s (1σ)", "{:.2f}"), ("period_rpm", "period rpm", "{:.0f}"),
-            ("period_rpm_sigma", "± rpm (1σ)", "{:.0f}"),
+            ("period_rpm_sigma", "± rpm (1σ)", "{:.0f}"), ("period_fold_from", "period's turn from", "{}"),
             ("period_contradicts", "contradicted by the period", "{}")]
 
 

@@ -587,8 +587,9 @@ def session_flights(session_path, track: Track, options: ReplayOptions,
 
 def spin_attrs(spins: dict) -> dict:
     """``{flight: FlightSpin or None}`` as a session stores it (attrs ``flight_spins``): ``{"flight": {axis,
-    omega_rad_s, fold, ratio, excess, trusted, axis_sigma_deg, rps_sigma_pct, turns} or None}``."""
-    return {str(k): None if v is None else {**{f: (bool(x) if f == "trusted" else int(x) if f == "fold" else float(x))
+    omega_rad_s, fold, ratio, excess, trusted, axis_sigma_deg, rps_sigma_pct, turns, fold_ratio, rate_trusted}
+    or None}``."""
+    return {str(k): None if v is None else {**{f: (bool(x) if f in ("trusted", "rate_trusted") else int(x) if f == "fold" else float(x))
                                                for f, x in asdict(v).items() if f != "axis"},
                                             "axis": [float(a) for a in v.axis]}
             for k, v in spins.items()}

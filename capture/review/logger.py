@@ -375,8 +375,11 @@ class ReviewLogger:
             for path, value in ((PLOT_RPM_FLIGHT, table["rpm"][i]), (PLOT_SPEED_FLIGHT, table["speed_m_s"][i])):
                 if np.isfinite(value):
                     self._span(path, t0, t1, float(value))
+            period = table.get("period_rpm", [np.nan] * len(table["flight"]))[i]
             spin = (f"{table['rpm'][i]:.0f} ± {table['rpm_sigma'][i]:.0f} rpm, tilt {table['tilt'][i]}"
-                    if np.isfinite(table["rpm"][i]) else "no trusted estimate")
+                    if np.isfinite(table["rpm"][i]) else
+                    f"no trusted axis, {period:.0f} ± {table['period_rpm_sigma'][i]:.0f} rpm from the image's period"
+                    if np.isfinite(period) else "no trusted estimate")
             self.text(f"flight {fl} starts: {spin}, {table['n_trusted'][i]}/{table['n_windows'][i]} windows "
                       "trusted", t_us=t0, note=False)
             self.text(f"flight {fl} ends ({table['duration_ms'][i]:.0f} ms)", t_us=t1, note=False)
