@@ -213,6 +213,12 @@ largest value of 3.5; smaller balls (18 px) falling on a steep arc across a 320x
 up to 1.2 % fast over 9 repeats (11), where the same ball flying straight, or still, gave the
 period exactly [cause not found: the arc's acceleration and the sensor's lag are suspected]."""
 PERIOD_SIGMA_FLOOR_PCT = 0.05
+"""... and at least this. Both count turns, not repeats, where the image repeats more than once a turn (a
+fold above 1: :func:`period_sigma_pct`): such a repeat is a near-symmetry of the texture, and its lag a little
+off. On the bench's tracked flights of seeds 1-10 (``bench/spin_bench.py --flights``' cases, 240 periods),
+the 225 at one repeat a turn all lay within 2 sigma counted in repeats, but 2 of the 15 at folds 2-5 did not
+(a baseball at 10 rps, fold 2, 2.9 % fast at 3.6 sigma; a soccer ball at 150 rps, fold 5, 0.26 % at 5.2);
+counted in turns, all 15 do (1.8 and 1.0 sigma)."""
 
 
 def period_folds(period_s: float) -> np.ndarray:
@@ -233,13 +239,15 @@ def period_rate(period_s: float, span_s: float, window_rps) -> tuple[float, floa
     near = np.flatnonzero(np.abs(rates / window_rps - 1.0) <= FOLD_TOLERANCE)
     if not len(near):
         return None
-    return float(rates[near[0]]), period_sigma_pct(period_s, span_s)
+    return float(rates[near[0]]), period_sigma_pct(period_s, span_s, int(near[0]) + 1)
 
 
-def period_sigma_pct(period_s: float, span_s: float) -> float:
-    """1-sigma uncertainty (%) of a rate from an image period ``period_s`` (s) measured over ``span_s`` (s):
-    :data:`PERIOD_SIGMA_REPEATS_PCT` over the number of repeats, at least :data:`PERIOD_SIGMA_FLOOR_PCT`."""
-    return max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
+def period_sigma_pct(period_s: float, span_s: float, fold: int = 1) -> float:
+    """1-sigma uncertainty (%) of a rate from an image period ``period_s`` (s) measured over ``span_s`` (s),
+    the image repeating ``fold`` times a turn: :data:`PERIOD_SIGMA_REPEATS_PCT` over the number of repeats,
+    at least :data:`PERIOD_SIGMA_FLOOR_PCT`, times ``fold`` (a repeat within a turn holds only as well as the
+    turn)."""
+    return fold * max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / span_s)
 
 
 PERIOD_CONTRADICTS = 0.05
@@ -317,7 +325,7 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
         row["period_fold_from"] = "windows" if by_period is not None else "-"
         if by_period is None and found is not None and fold is not None:
             # no window singles out the period's fold: the whole flight's map does, where it tells its fold apart
-            by_period = float(period_folds(found[0])[fold - 1]), period_sigma_pct(found[0], found[2])
+            by_period = float(period_folds(found[0])[fold - 1]), period_sigma_pct(found[0], found[2], fold)
             row["period_fold_from"] = "flight"
         if by_period is not None:
             row.update(period_rpm=60.0 * by_period[0], period_rpm_sigma=60.0 * by_period[0] * by_period[1] / 100.0)

@@ -143,7 +143,8 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
     period_s : float
         The period over which the ball's image repeats (:func:`spin.period.flight_period`), s.
     period_sigma_pct : float
-        Its 1-sigma uncertainty (%), the rate's.
+        Its 1-sigma uncertainty (%): the rate's at one turn per repeat; an answer at fold k (the image
+        repeating k times a turn, a near-symmetry of its texture) has k times it.
     ray : array_like (3,), optional
         The direction from the camera to the ball (camera frame; a pinhole's ray through the track's
         middle): the answer, found about that line of sight, is turned into the camera frame. None: the
@@ -224,5 +225,5 @@ def flight_spin(t_us, x_px, y_px, p, cx_px, cy_px, r_px, period_s: float, *, per
         axis = centring_rotation(ray / np.linalg.norm(ray)).T @ axis
     trusted = ratio >= TRUST_RATIO and excess >= TRUST_EXCESS and turns >= TRUST_TURNS
     return FlightSpin(axis=axis, omega_rad_s=omega, fold=fold, ratio=ratio, excess=excess, trusted=trusted,
-                      axis_sigma_deg=AXIS_SIGMA_DEG, rps_sigma_pct=float(period_sigma_pct), turns=turns,
+                      axis_sigma_deg=AXIS_SIGMA_DEG, rps_sigma_pct=float(fold * period_sigma_pct), turns=turns,
                       fold_ratio=fold_ratio, rate_trusted=trusted or fold_ratio >= TRUST_FOLD_RATIO)

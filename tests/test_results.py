@@ -110,7 +110,8 @@ def test_a_flight_without_a_trusted_window_gets_its_rate_from_its_image_period()
     t = flight_table(track, spin, periods=periods)
     assert np.isnan(t["rpm"][1]) and t["period_rpm"][1] == pytest.approx(1800.0)
     assert t["period_rpm"][0] == pytest.approx(60 * 30.01)
-    assert t["period_rpm_sigma"][1] == pytest.approx(1800.0 * PERIOD_SIGMA_REPEATS_PCT * (1 / 150) / 0.1 / 100)
+    # (its sigma: over the turns, not the repeats, five times that of one repeat a turn)
+    assert t["period_rpm_sigma"][1] == pytest.approx(1800.0 * 5 * PERIOD_SIGMA_REPEATS_PCT * (1 / 150) / 0.1 / 100)
     text = format_flight_table(t)
     assert "period rpm" in text.splitlines()[0] and f"1800 ± {t['period_rpm_sigma'][1]:.0f}" in text.splitlines()[2]
     assert "no trusted axis: rate from the period" in text.splitlines()[2]
@@ -151,8 +152,10 @@ def test_the_windows_rate_picks_how_many_repeats_make_a_turn(period_s, window_rp
     else:
         rps, sigma_pct = got
         assert rps == pytest.approx(expected_rps)
-        # over fewer repeats, a wider uncertainty
-        assert sigma_pct == pytest.approx(max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / 0.3))
+        # over fewer repeats, a wider uncertainty; counted in turns where the image repeats more than once a
+        # turn (a near-symmetry of the texture repeats less exactly)
+        fold = round(1 / (period_s * rps))
+        assert sigma_pct == pytest.approx(fold * max(PERIOD_SIGMA_FLOOR_PCT, PERIOD_SIGMA_REPEATS_PCT * period_s / 0.3))
 
 
 def test_the_table_prints_no_negative_zero():
@@ -465,6 +468,7 @@ def test_a_slow_ball_s_rate_comes_from_the_whole_flight_s_fold_where_its_windows
                      flight_spins={0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": slow.omega_rad_s, "fold": 2,
                                        "trusted": False, "rate_trusted": True}})
     assert t["period_rpm"][0] == pytest.approx(600.0) and t["period_fold_from"][0] == "flight"
+    assert t["period_rpm_sigma"][0] == pytest.approx(600.0 * 2 * PERIOD_SIGMA_REPEATS_PCT * 0.05 / 0.35 / 100)
     # a fold the map cannot tell, or a spin stored before rate_trusted was and not trusted: no rate
     for unsure in ({0: FlightSpin(**{**slow.__dict__, "fold_ratio": 1.02, "rate_trusted": False})},
                    {0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": slow.omega_rad_s, "fold": 1, "trusted": False}}):

@@ -38,6 +38,11 @@ def test_a_sparse_ball_s_axis_comes_from_its_whole_flight(texture, axis):
     assert found.trusted and found.ratio >= TRUST_RATIO and found.excess >= TRUST_EXCESS and found.fold == 1
     assert _axis_error_deg(found.axis, truth["axis"]) < 5.0
     assert found.rps == pytest.approx(30.0, rel=0.01)
+    # told half the period (as a texture whose image repeats twice a turn gives it): two repeats make the
+    # turn, the same answer, and the rate's sigma counts turns, twice the period's
+    halved = flight_spin(*columns, period_s / 2, period_sigma_pct=0.1)
+    assert halved.fold == 2 and halved.rps == pytest.approx(found.rps, rel=1e-3)
+    assert halved.rps_sigma_pct == pytest.approx(0.2) and found.rps_sigma_pct == pytest.approx(0.1)
 
 
 def test_a_slow_ball_s_rate_comes_from_its_three_turns_but_its_axis_is_not_trusted():
@@ -53,6 +58,7 @@ def test_a_slow_ball_s_rate_comes_from_its_three_turns_but_its_axis_is_not_trust
     assert found.ratio >= TRUST_RATIO and found.excess >= TRUST_EXCESS
     assert found.turns == pytest.approx(3.0, abs=0.2) and not found.trusted
     assert found.fold_ratio >= TRUST_FOLD_RATIO and found.rate_trusted
+    assert found.rps_sigma_pct == 0.7  # (one repeat a turn: the period's own)
 
 
 def test_a_slow_ball_whose_map_misleads_is_not_trusted():

@@ -540,7 +540,7 @@ class WholeFlightPart:
 
 def whole_flight_spin(work: WholeFlightPart) -> FlightSpin | None:
     """The flight's spin from all its events at its period's speed (:func:`spin.flight.flight_spin`), the
-    rate's sigma that of the period (:func:`capture.results.period_sigma_pct`)."""
+    rate's sigma that of the period (:func:`capture.results.period_sigma_pct`; times the fold it finds)."""
     from capture.results import period_sigma_pct
 
     period_s, _, span_s = work.period
