@@ -372,12 +372,18 @@ def flight_table(track: Track, spin: dict, *, camera=None, ball_diameter_m: floa
             for k in names}
 
 
+def _whole_flight_field(found):
+    """``get(key, default=None)`` for a whole-flight spin given as a ``spin.flight.FlightSpin`` or as its
+    stored dict (:func:`capture.pipeline.replay.spin_attrs`)."""
+    return found.get if isinstance(found, dict) else lambda k, d=None: getattr(found, k, d)
+
+
 def _flight_fold(found) -> int | None:
     """The fold (repeats of the image per turn) of a whole-flight spin (a ``spin.flight.FlightSpin`` or its
     stored dict) whose rate stands (``rate_trusted``; in a dict stored before that was: ``trusted``), or None."""
     if found is None:
         return None
-    get = found.get if isinstance(found, dict) else lambda k, d=None: getattr(found, k, d)
+    get = _whole_flight_field(found)
     return int(get("fold")) if get("rate_trusted", get("trusted")) else None
 
 
@@ -386,7 +392,7 @@ def _trusted_flight_spin(found) -> tuple[np.ndarray, dict] | None:
     ``spin.flight.FlightSpin`` or its stored dict), or None."""
     if found is None:
         return None
-    get = found.get if isinstance(found, dict) else lambda k: getattr(found, k)
+    get = _whole_flight_field(found)
     if not get("trusted"):
         return None
     return (np.asarray(get("axis"), np.float64),

@@ -447,6 +447,7 @@ def test_a_slow_ball_s_rate_comes_from_the_whole_flight_s_fold_where_its_windows
     whole-flight spin whose fold the map cannot tell gives nothing, and a fold the windows single out
     stands."""
     import math
+    from dataclasses import replace
 
     from spin.flight import FlightSpin
 
@@ -470,12 +471,12 @@ def test_a_slow_ball_s_rate_comes_from_the_whole_flight_s_fold_where_its_windows
     assert t["period_rpm"][0] == pytest.approx(600.0) and t["period_fold_from"][0] == "flight"
     assert t["period_rpm_sigma"][0] == pytest.approx(600.0 * 2 * PERIOD_SIGMA_REPEATS_PCT * 0.05 / 0.35 / 100)
     # a fold the map cannot tell, or a spin stored before rate_trusted was and not trusted: no rate
-    for unsure in ({0: FlightSpin(**{**slow.__dict__, "fold_ratio": 1.02, "rate_trusted": False})},
+    for unsure in ({0: replace(slow, fold_ratio=1.02, rate_trusted=False)},
                    {0: {"axis": [0.0, 0.0, -1.0], "omega_rad_s": slow.omega_rad_s, "fold": 1, "trusted": False}}):
         t = flight_table(_track(v), windows, periods=periods, flight_spins=unsure)
         assert np.isnan(t["period_rpm"][0]) and t["period_fold_from"][0] == "-"
         assert "no trusted estimate" in format_flight_table(t).splitlines()[1]
     # windows whose median singles out a fold: theirs stands, whatever the whole flight says
     t = flight_table(_track(v), _spin((0, 1, 0), 5.1, v, conf=0.2), periods=periods,
-                     flight_spins={0: FlightSpin(**{**slow.__dict__, "fold": 1})})
+                     flight_spins={0: slow})
     assert t["period_fold_from"][0] == "windows" and t["period_rpm"][0] == pytest.approx(300.0)

@@ -348,6 +348,7 @@ def test_a_flight_with_a_rate_but_no_trusted_axis_says_so_in_the_log(tmp_path):
     """Flight 1's one window is not trusted and its rate (30.5 rps) singles out no fold of the period the
     analysis stored (0.1 s); the whole flight's spin, not trusted but sure of its fold, gives the turn: the
     log gives the rate from the image's period and says the axis is not trusted."""
+    from capture.results import PERIOD_SIGMA_REPEATS_PCT
     from capture.session import update_session
 
     session = _make_session(tmp_path / "session", frames="none")
@@ -359,7 +360,7 @@ def test_a_flight_with_a_rate_but_no_trusted_axis_says_so_in_the_log(tmp_path):
     w.close()
     review.write_rrd(session, tmp_path / "out.rrd", slice_us=SLICE_US, max_events_per_slice=CAP, progress=False)
     texts = _texts(read_rrd(tmp_path / "out.rrd"))
-    sigma = 600.0 * 6.0 * 0.1 / 0.35 / 100.0  # capture.results.PERIOD_SIGMA_REPEATS_PCT over the repeats
+    sigma = 600.0 * PERIOD_SIGMA_REPEATS_PCT * 0.1 / 0.35 / 100.0  # over the 3.5 repeats
     assert f"flight 1 starts: no trusted axis, 600 ± {sigma:.0f} rpm from the image's period, 0/1 windows trusted" in texts
 
 
